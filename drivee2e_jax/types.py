@@ -364,3 +364,75 @@ class Waypoints:
     """
 
     xy: Array
+
+
+# --------------------------------------------------------------------------
+# Observations
+# --------------------------------------------------------------------------
+
+
+@struct.dataclass
+class Privileged:
+    """Ground truth a benchmark policy must not use, but reference policies do
+    (log replay, the rule-based expert's perfect signal knowledge).
+
+    Attributes:
+      ego:          EgoState, the exact simulated ego state.
+      log_next_xy:  (2,) float32 the logged ego position one sim step ahead, m.
+      log_next_yaw: () float32 the logged ego heading one sim step ahead, rad.
+      log_valid:    () bool, the logged ego exists at that time.
+      log_controls: Controls that move the simulated ego onto the logged next
+                    pose (``dynamics.inverse``): the reference demonstration
+                    expressed as an action from the CURRENT simulated state.
+    """
+
+    ego: EgoState
+    log_next_xy: Array
+    log_next_yaw: Array
+    log_valid: Array
+    log_controls: "Controls"
+
+
+@struct.dataclass
+class Observation:
+    """What the policy sees, rendered from the ego's current SIMULATED state.
+
+    Ego-frame vectors have x forward, y left, metres. Optional sensor slots
+    (``bev``, ``lidar``) are ``None`` unless enabled in ``ObsConfig``.
+
+    Attributes:
+      ego:            (4,) float32 [speed m/s, accel m/s^2, yaw_rate rad/s, steer rad].
+      gps:            (2,) float32 world position, m (noisy if configured).
+      compass:        () float32 world heading, rad (noisy if configured).
+      route:          (P, 2) float32 next route points ahead, ego frame.
+      route_valid:    (P,) bool.
+      command:        () int32 ``Command`` at the next route point.
+      agents:         (K, 8) float32 nearest agents: x, y, cos dyaw, sin dyaw,
+                      vx, vy (ego frame, m/s), length, width.
+      agents_category:(K,) int32 ``Category``.
+      agents_valid:   (K,) bool.
+      lanes:          (M, Q, 2) float32 nearby lane centrelines, ego frame.
+      lanes_valid:    (M, Q) bool.
+      signal_state:   () int32 ``SignalState`` of the next stop line on the route.
+      signal_distance:() float32 route distance to that stop line, m (1e3 if none).
+      privileged:     Privileged.
+      bev:            (H, W, C) float32 or None (sensor issue).
+      lidar:          (beams, channels) float32 or None (sensor issue).
+    """
+
+    ego: Array
+    gps: Array
+    compass: Array
+    route: Array
+    route_valid: Array
+    command: Array
+    agents: Array
+    agents_category: Array
+    agents_valid: Array
+    lanes: Array
+    lanes_valid: Array
+    signal_state: Array
+    signal_distance: Array
+    privileged: Privileged
+    bev: Array | None = None
+    lidar: Array | None = None

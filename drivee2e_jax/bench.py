@@ -1,0 +1,200 @@
+"""The main job: evaluate several policies on one suite split, write and print results.
+
+``run_bench(BenchConfig(...))`` is what ``drivee2e bench`` calls. Each policy
+is one batched rollout over the whole split; finished policies are saved
+atomically and skipped when the run is resumed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from drivee2e_jax.io.results import RunDir
+from drivee2e_jax.metrics import episode as ep
+
+
+@dataclasses.dataclass(frozen=True)
+class BenchConfig:
+    """One benchmark run (CLI flags map one to one).
+
+    Attributes:
+      suite: suite name or folder.  split: split name.
+      policies: policy file paths.  out: results folder (default results/<suite>-<split>).
+      force: overwrite existing results.  preset: scoring rules.
+      dt: sim step, s.  control_every / latency: control timing, steps.
+      limit: only the first N scenarios.  seed: PRNG seed.  progress: show a bar.
+    """
+
+    suite: str = "twin15"
+    split: str = "val"
+    policies: tuple[str, ...] = ()
+    out: Path | None = None
+    force: bool = False
+    preset: str = "paper"
+    dt: float = 0.1
+    control_every: int = 1
+    latency: int = 0
+    limit: int | None = None
+    seed: int = 0
+    progress: bool = True
+
+
+def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict:
+    """Run, write ``results/<run>/`` and print the tables. Returns the summary."""
+    from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.evaluate import evaluate
+    from drivee2e_jax.policy import load_policy
+    from drivee2e_jax.rollout import ControlTiming
+    from drivee2e_jax.scenario import load_suite
+    from drivee2e_jax.sim import SimConfig, score_preset
+
+    if cfg.limit is not None and cfg.limit < 1:
+        raise DriveE2EError(f"--limit must be >= 1, got {cfg.limit}")
+    suite = load_suite(cfg.suite)
+    packed = suite.pack(cfg.split)
+    policies = [load_policy(p) for p in cfg.policies]
+    names = [p.name for p in policies]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise DriveE2EError(f"two policies are named {sorted(dup)[0]!r}; policy names must be unique in a run")
+    try:
+        sim_cfg = SimConfig(dt=cfg.dt, score=score_preset(cfg.preset))
+        timing = ControlTiming(cfg.control_every, cfg.latency)
+    except ValueError as e:
+        raise DriveE2EError(str(e)) from e
+
+    suite_tag = Path(cfg.suite).name if Path(cfg.suite).exists() else cfg.suite
+    out = cfg.out or Path("results") / f"{suite_tag}-{cfg.split}"
+    run_info = {
+        "suite": cfg.suite,
+        "suite_version": suite.version,
+        "split": cfg.split,
+        "num_scenarios": min(len(packed.meta), cfg.limit or len(packed.meta)),
+        "preset": cfg.preset,
+        "dt": cfg.dt,
+        "control_every": cfg.control_every,
+        "latency": cfg.latency,
+        "seed": cfg.seed,
+    }
+    run = RunDir(out, run_info, force=cfg.force)
+    print_fn(f"suite {suite.name} v{suite.version}, split {cfg.split}: {run_info['num_scenarios']} scenarios -> {out}")
+
+    for pol, path in zip(policies, cfg.policies):
+        if run.done(pol.name):
+            print_fn(f"[{pol.name}] already done in {run.policy_file(pol.name)} (resumed; --force to redo)")
+            continue
+        bar = _progress_bar(pol.name, cfg.progress)
+        res = evaluate(
+            pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed, limit=cfg.limit, progress=bar.update
+        )
+        bar.close()
+        run.save_policy(
+            pol.name,
+            res.rows,
+            res.events,
+            {"policy_path": str(path), "compile_s": res.compile_s, "wall_s": res.wall_s, "steps": res.steps},
+        )
+        print_fn(
+            f"[{pol.name}] {len(res.rows)} episodes, {res.steps} steps: compile+first chunk {res.compile_s:.1f} s, "
+            f"rollout {res.wall_s:.1f} s"
+        )
+
+    rows_by_policy = {n: run.load_policy(n)["rows"] for n in names}
+    summary = summarize(rows_by_policy, run_info)
+    run.write_tables(names, summary, ep.COUNT_COLUMNS)
+    print_fn("")
+    print_fn(format_tables(summary))
+    print_fn(f"\nper-scenario results: {out / 'scenarios.csv'}, summary: {out / 'summary.json'}")
+    return summary
+
+
+class _progress_bar:
+    """tqdm over simulated steps; a no-op when disabled."""
+
+    def __init__(self, name: str, enabled: bool):
+        self.bar = None
+        self.last = 0
+        if enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=None, desc=f"{name:>12}", unit="step", leave=True, dynamic_ncols=True)
+
+    def update(self, done: int, total: int) -> None:
+        if self.bar is None:
+            return
+        if self.bar.total != total:
+            self.bar.total = total
+        self.bar.update(done - self.last)
+        self.last = done
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def summarize(rows_by_policy: dict[str, list[dict]], run_info: dict) -> dict:
+    """Aggregates per policy and per behaviour group / intersection / weather."""
+    from drivee2e_jax.metrics.aggregate import drivee2e_summary
+
+    out = {"run": run_info, "policies": {}}
+    for name, rows in rows_by_policy.items():
+        out["policies"][name] = {
+            "overall": drivee2e_summary(rows, ep.COUNT_COLUMNS),
+            "by_behavior": _group(rows, "behavior"),
+            "by_intersection": _group(rows, "intersection_id"),
+            "by_weather": _group(rows, "weather"),
+        }
+    return out
+
+
+def _group(rows, key):
+    from drivee2e_jax.metrics.aggregate import drivee2e_summary
+
+    groups = {}
+    for r in rows:
+        groups.setdefault(r[key], []).append(r)
+    return {g: drivee2e_summary(rs, ep.COUNT_COLUMNS, brief=True) for g, rs in sorted(groups.items())}
+
+
+BEHAVIOR_ORDER = ("COV", "IPC", "UT", "YLW", "STR", "LFT", "RT", "STP")
+
+
+def format_tables(summary: dict) -> str:
+    """The two tables printed at the end of a run (plain text)."""
+    pols = summary["policies"]
+    lines = []
+    head = f"{'policy':<14}{'SR %':>7}{'DS':>8}{'RC':>8}{'IS':>7}{'coll/km':>9}{'red/km':>8}{'offlane%':>9}{'t/scn s':>9}"
+    lines += ["Closed-loop results (mean over scenarios)", head, "-" * len(head)]
+    for name, s in pols.items():
+        o = s["overall"]
+        lines.append(
+            f"{name:<14}{o['success_rate']:>7.1f}{o['driving_score']:>8.2f}{o['route_completion']:>8.2f}"
+            f"{o['infraction_score']:>7.3f}{o['collisions_per_km']:>9.3f}{o['red_light_per_km']:>8.3f}"
+            f"{o['outside_route_lanes_pct']:>9.2f}{o['eval_time_s']:>9.3f}"
+        )
+    groups = [g for g in BEHAVIOR_ORDER if any(g in s["by_behavior"] for s in pols.values())]
+    head = f"{'SR % by behaviour':<18}" + "".join(f"{g:>7}" for g in groups)
+    lines += ["", head, "-" * len(head)]
+    for name, s in pols.items():
+        cells = "".join(
+            f"{s['by_behavior'][g]['success_rate']:>7.1f}" if g in s["by_behavior"] else f"{'-':>7}" for g in groups
+        )
+        lines.append(f"{name:<18}{cells}")
+    head = f"{'DS by behaviour':<18}" + "".join(f"{g:>7}" for g in groups)
+    lines += ["", head, "-" * len(head)]
+    for name, s in pols.items():
+        cells = "".join(
+            f"{s['by_behavior'][g]['driving_score']:>7.1f}" if g in s["by_behavior"] else f"{'-':>7}" for g in groups
+        )
+        lines.append(f"{name:<18}{cells}")
+    n = summary["run"].get("num_scenarios")
+    lines.append(f"\n(n = {n} scenarios per policy; group sizes in summary.json)")
+    return "\n".join(lines)
+
+
+def _np_mean(x):
+    return float(np.mean(x)) if len(x) else 0.0

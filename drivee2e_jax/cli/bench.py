@@ -1,0 +1,98 @@
+"""`drivee2e bench`: evaluate policies on a suite split, closed loop, all at once."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+EPILOG = """\
+examples:
+  drivee2e bench                                   # twin15 val, the three reference policies
+  drivee2e bench --policy policies/expert.py --split test --out results/expert-test
+  drivee2e bench --suite path/to/suite --policy my_policy.py --control-every 2 --latency 1
+
+Reference policies can be named without a path: log_replay, expert, stop.
+Results go to results/<suite>-<split>/ unless --out is given; a rerun resumes
+(finished policies are skipped) and never overwrites without --force.
+"""
+
+DEFAULT_POLICIES = ("log_replay", "expert", "stop")
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "bench",
+        help="evaluate policies closed-loop on a suite split (the main job)",
+        description="Run every episode of a suite split in one batched, jit-compiled closed-loop rollout per policy; "
+        "print SR / DS / RC / infraction rates per policy and per behaviour group; write per-scenario results.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--suite", default="twin15", help="suite name (twin15) or suite folder (default: twin15)")
+    p.add_argument("--split", default="val", help="split to evaluate (default: val)")
+    p.add_argument(
+        "--policy",
+        action="append",
+        dest="policies",
+        metavar="P",
+        help="policy file (.py) or reference policy name; repeatable (default: log_replay, expert, stop)",
+    )
+    p.add_argument("--out", type=Path, default=None, help="results folder (default: results/<suite>-<split>)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing results folder")
+    p.add_argument(
+        "--preset",
+        default="paper",
+        choices=("paper", "drivee2e", "lb20", "lb21", "b2d"),
+        help="scoring rules (default: paper = DriveE2E as its paper defines SR/DS; see docs/metrics.md)",
+    )
+    p.add_argument("--dt", type=float, default=0.1, help="simulation step in seconds (default: 0.1)")
+    p.add_argument("--control-every", type=int, default=1, help="query the policy every k sim steps (default: 1)")
+    p.add_argument("--latency", type=int, default=0, help="action latency in sim steps (default: 0)")
+    p.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenarios of the split")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed (observation noise, stochastic policies)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def resolve_policy_path(spec: str) -> Path:
+    """A policy argument: an existing file, or a reference policy name."""
+    from drivee2e_jax.errors import DriveE2EError
+
+    path = Path(spec)
+    if path.suffix == ".py" or path.exists():
+        if not path.is_file():
+            raise DriveE2EError(f"{spec}: policy file not found (expected a .py file or one of {', '.join(DEFAULT_POLICIES)})")
+        return path
+    ref = reference_policy_dir() / f"{spec}.py"
+    if ref.is_file():
+        return ref
+    raise DriveE2EError(f"--policy {spec}: not a file and not a reference policy (expected a .py path or one of {', '.join(DEFAULT_POLICIES)})")
+
+
+def reference_policy_dir() -> Path:
+    """The repository's ``policies/`` folder (next to the package)."""
+    import drivee2e_jax
+
+    return Path(drivee2e_jax.__file__).resolve().parents[1] / "policies"
+
+
+def run(args) -> int:
+    from drivee2e_jax.bench import BenchConfig, run_bench
+
+    cfg = BenchConfig(
+        suite=args.suite,
+        split=args.split,
+        policies=tuple(str(resolve_policy_path(p)) for p in (args.policies or DEFAULT_POLICIES)),
+        out=args.out,
+        force=args.force,
+        preset=args.preset,
+        dt=args.dt,
+        control_every=args.control_every,
+        latency=args.latency,
+        limit=args.limit,
+        seed=args.seed,
+        progress=not args.no_progress,
+    )
+    run_bench(cfg, print_fn=print)
+    return 0

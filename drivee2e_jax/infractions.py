@@ -1,0 +1,185 @@
+"""Per-step infraction facts: the geometry behind every leaderboard event.
+
+These pure functions (one scenario, one tick) answer *what happened this tick*:
+which actor the ego box touches, whether its tail crossed a red stop line,
+whether it is off its lanes, how fast the surrounding traffic moves. The
+stateful leaderboard logic that turns facts into counted events (collision
+de-duplication, route completion windows, checkpoints ...) lives in
+``metrics.criteria``; ``sim.step`` wires the two together.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from drivee2e_jax import geometry
+from drivee2e_jax.metrics.criteria import CollisionClass
+from drivee2e_jax.replay import AgentStates
+from drivee2e_jax.types import Category, EgoState, MapData, SignalState
+
+# Collision classes as CARLA's collision test names them.
+CLASS_WALKER = int(CollisionClass.PEDESTRIAN)
+CLASS_VEHICLE = int(CollisionClass.VEHICLE)
+
+#: Half-angle (rad) within which a lane counts as running the ego's way. LB 2.0
+#: flags a "wrong lane" on a heading jump of > 150 deg; 120 deg is the
+#: junction-exit bound it also uses, so a lane > 120 deg off is opposite traffic.
+LANE_ALIGN_MAX = jnp.deg2rad(120.0)
+#: LB 2.0: off-lane if distance to the lane centre > lane_width / 2 + 0.5 m.
+LANE_MARGIN = 0.5
+#: Radius (m) within which moving vehicles count as surrounding "background"
+#: traffic for the minimum-speed checkpoints (LB spawns them around the ego).
+BACKGROUND_RADIUS = 50.0
+
+
+@struct.dataclass
+class StepFacts:
+    """Raw facts about one tick (all scalars).
+
+    Attributes:
+      agent_hit:     bool, the ego box overlaps a replayed agent's box.
+      agent_hit_id:  int32 that agent's track id (the lowest row if several).
+      agent_hit_class: int32 CLASS_WALKER or CLASS_VEHICLE.
+      agent_hit_category: int32 finer ``Category`` of that agent.
+      layout_hit:    bool, the ego box overlaps a static obstacle.
+      red_light:     bool, the ego's tail crossed a stop line showing red.
+      red_light_index: int32 that stop line's row (-1 if none).
+      red_light_lines: (S,) bool every stop line crossed on red this tick.
+      off_lane:      bool, no lane running the ego's way is within width/2 + 0.5 m.
+      lane_offset:   float32 distance to the nearest aligned lane centre, m.
+      bg_speed:      float32 mean speed of moving vehicles within 50 m, m/s.
+      bg_present:    bool, at least one such vehicle.
+      front_distance: float32 centre distance to the nearest agent ahead in the
+                     ego's lane corridor, m (inf if none).
+    """
+
+    agent_hit: jnp.ndarray
+    agent_hit_id: jnp.ndarray
+    agent_hit_class: jnp.ndarray
+    agent_hit_category: jnp.ndarray
+    layout_hit: jnp.ndarray
+    red_light: jnp.ndarray
+    red_light_index: jnp.ndarray
+    red_light_lines: jnp.ndarray
+    off_lane: jnp.ndarray
+    lane_offset: jnp.ndarray
+    bg_speed: jnp.ndarray
+    bg_present: jnp.ndarray
+    front_distance: jnp.ndarray
+
+
+def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, track_id):
+    """Which replayed agent (if any) the ego box overlaps.
+
+    Returns (hit, track id, class, category) of the lowest-row overlapping agent.
+    CARLA reports one collision event per contact; one per tick is enough
+    here because ``CollisionDedup`` drops repeats of the same actor within 5 s
+    and any contact within 5 m of the last counted one.
+    """
+    overlap = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))(
+        ego.xy, ego.yaw, ego_lw, agents.xy, agents.yaw, size[:, :2]
+    )
+    overlap = overlap & agents.valid
+    i = jnp.argmax(overlap)
+    cat = category[i]
+    cls = jnp.where(cat == Category.PEDESTRIAN, CLASS_WALKER, CLASS_VEHICLE)
+    return overlap.any(), track_id[i], cls.astype(jnp.int32), cat.astype(jnp.int32)
+
+
+def layout_contact(ego: EgoState, ego_lw, map_data: MapData):
+    """Whether the ego box overlaps any static obstacle footprint (convex)."""
+    obs = map_data.obstacles
+    hit = jax.vmap(geometry.convex_polygon_box_overlap, in_axes=(0, 0, None, None, None))(
+        obs.xy, obs.point_valid, ego.xy, ego.yaw, ego_lw
+    )
+    return (hit & obs.valid).any()
+
+
+def stop_line_directions(map_data: MapData):
+    """(S, 2) unit direction of travel across each stop line (its lane's heading).
+
+    Falls back to the stop line's normal when the guarded lane is unknown.
+    """
+    lanes = map_data.lanes
+    mid = map_data.stop_lines.mean(axis=1)
+
+    def one(mid_s, lane_s, seg):
+        lane = jnp.maximum(lane_s, 0)
+        proj = geometry.project_to_polyline(mid_s, lanes.xy[lane], lanes.point_valid[lane])
+        d_lane = jnp.stack([jnp.cos(proj.heading), jnp.sin(proj.heading)])
+        e = seg[1] - seg[0]
+        normal = jnp.stack([-e[1], e[0]]) / (jnp.linalg.norm(e) + 1e-9)
+        return jnp.where(lane_s >= 0, d_lane, normal)
+
+    return jax.vmap(one)(mid, map_data.stop_line_lane, map_data.stop_lines)
+
+
+def red_light_crossing(prev: EgoState, ego: EgoState, ego_length, map_data: MapData, stop_dir, state):
+    """Whether the ego's tail crossed a stop line showing red this tick.
+
+    LB 2.0 tests the tail segment (0.8 * half-length to half-length + 1 m
+    behind the centre) against each stop line at 20 Hz. At our 10 Hz a car at
+    15 m/s moves 1.5 m per tick and could jump over a 1.5 m segment, so we test
+    the swept segment from last tick's far tail point to this tick's near tail
+    point, which contains both tail segments. Heading must agree with the lane
+    (dot > 0), as in LB.
+
+    Returns (any: bool, first stop line row: int32 or -1, (S,) bool per line).
+    """
+    half = 0.5 * ego_length
+
+    def fwd(e):
+        return jnp.stack([jnp.cos(e.yaw), jnp.sin(e.yaw)])
+
+    a = prev.xy - fwd(prev) * (half + 1.0)
+    b = ego.xy - fwd(ego) * (0.8 * half)
+    crossed = jax.vmap(geometry.segments_intersect, in_axes=(None, None, 0, 0))(
+        a, b, map_data.stop_lines[:, 0], map_data.stop_lines[:, 1]
+    )
+    aligned = stop_dir @ fwd(ego) > 0.0
+    red = crossed & aligned & map_data.stop_line_valid & (state == SignalState.RED)
+    return red.any(), jnp.where(red.any(), jnp.argmax(red), -1).astype(jnp.int32), red
+
+
+def lane_status(ego: EgoState, lane_xy, lane_point_valid, lane_valid, lane_width):
+    """Off-lane test against candidate lanes (M of them).
+
+    A lane counts if it runs within ``LANE_ALIGN_MAX`` of the ego heading; the
+    ego is off-lane when the nearest such centreline is farther than
+    width / 2 + 0.5 m (LB 2.0's test; an opposite-direction lane never counts,
+    which is LB's "wrong lane"). Connector lanes cover junction interiors, so
+    turning through the junction on a connector is on-lane.
+
+    Returns (off_lane: bool, offset to nearest aligned lane centre: float32).
+    """
+    proj = jax.vmap(geometry.project_to_polyline, in_axes=(None, 0, 0))(ego.xy, lane_xy, lane_point_valid)
+    aligned = jnp.abs(geometry.wrap_angle(proj.heading - ego.yaw)) < LANE_ALIGN_MAX
+    ok = lane_valid & aligned
+    excess = jnp.where(ok, proj.distance - (0.5 * lane_width + LANE_MARGIN), jnp.inf)
+    offset = jnp.where(ok, proj.distance, jnp.inf).min()
+    return ~(excess.min() <= 0.0), offset
+
+
+def background_speed(ego: EgoState, agents: AgentStates, category):
+    """Mean speed of vehicles within ``BACKGROUND_RADIUS`` (LB min-speed input)."""
+    d = jnp.linalg.norm(agents.xy - ego.xy, axis=-1)
+    is_vehicle = (category != Category.PEDESTRIAN) & (category != Category.CYCLIST)
+    sel = agents.valid & is_vehicle & (d < BACKGROUND_RADIUS)
+    speed = jnp.linalg.norm(agents.vel, axis=-1)
+    n = sel.sum()
+    return jnp.where(n > 0, jnp.sum(jnp.where(sel, speed, 0.0)) / jnp.maximum(n, 1), 0.0), n > 0
+
+
+def front_distance(ego: EgoState, ego_lw, agents: AgentStates, size):
+    """Centre distance to the nearest agent ahead inside the ego's lane corridor.
+
+    Corridor: ahead (x > 0 in the ego frame) and laterally within half the ego
+    width + half the agent width + 0.5 m. Used for Behavior Metrics'
+    front-vehicle buckets; inf if nothing is ahead.
+    """
+    rel = geometry.to_frame(agents.xy, ego.xy, ego.yaw)
+    in_corridor = (rel[:, 0] > 0) & (jnp.abs(rel[:, 1]) < 0.5 * ego_lw[1] + 0.5 * size[:, 1] + 0.5)
+    d = jnp.where(agents.valid & in_corridor, jnp.linalg.norm(rel, axis=-1), jnp.inf)
+    return d.min()

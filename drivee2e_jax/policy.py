@@ -1,0 +1,100 @@
+"""The Policy protocol and loading a policy from a file path.
+
+A policy is pure and runs inside the jitted rollout, once per control step,
+for one scenario (the rollout vmaps it)::
+
+    params = policy.init(key, obs)                 # any pytree (may be None)
+    pstate = policy.initial_state(obs)             # recurrent state / history
+    action, pstate = policy.act(params, obs, pstate, key)
+
+``action`` is a ``types.Controls`` (throttle, brake, steer) or a
+``types.Waypoints`` (future ego-frame points ``Waypoints.dt`` apart), as
+``policy.action_type`` declares; a waypoint action goes through the
+simulator's PID + pure-pursuit controller, as TCP / Bench2Drive agents do.
+
+A policy file (``--policy path/to/file.py``) defines either a module-level
+``policy`` object or a ``make_policy(**kwargs)`` factory returning one.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from typing import Any, Literal, Protocol, runtime_checkable
+
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.types import Observation
+
+ActionType = Literal["controls", "waypoints"]
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What the simulator needs from a driving policy.
+
+    Attributes:
+      name: short name used in result tables.
+      action_type: "controls" or "waypoints".
+      waypoint_dt: spacing of waypoint actions in seconds (waypoints only).
+    """
+
+    name: str
+    action_type: ActionType
+
+    def init(self, key, obs: Observation) -> Any: ...
+
+    def initial_state(self, obs: Observation) -> Any: ...
+
+    def act(self, params, obs: Observation, policy_state, key) -> tuple[Any, Any]: ...
+
+
+class StatelessPolicy:
+    """Convenience base: no parameters, no recurrent state."""
+
+    name = "policy"
+    action_type: ActionType = "controls"
+    waypoint_dt = 0.5
+
+    def init(self, key, obs):
+        return None
+
+    def initial_state(self, obs):
+        return None
+
+    def act(self, params, obs, policy_state, key):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+def load_policy(path: str | Path, **kwargs) -> Policy:
+    """Load a policy from a Python file.
+
+    Raises DriveE2EError (one line) when the file is missing, fails to import,
+    or defines neither ``policy`` nor ``make_policy``, or the object lacks the
+    protocol's methods.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise DriveE2EError(f"{path}: policy file not found (expected a .py file defining `policy` or `make_policy`)")
+    mod_name = f"drivee2e_policy_{p.stem}_{abs(hash(str(p.resolve())))}"
+    spec = importlib.util.spec_from_file_location(mod_name, p)
+    if spec is None or spec.loader is None:
+        raise DriveE2EError(f"{path}: cannot be imported as a Python module")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[mod_name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:  # a user's file: report, don't crash
+        raise DriveE2EError(f"{path}: importing the policy failed: {type(e).__name__}: {e}") from e
+    if hasattr(module, "make_policy"):
+        pol = module.make_policy(**kwargs)
+    elif hasattr(module, "policy"):
+        pol = module.policy
+    else:
+        raise DriveE2EError(f"{path}: defines neither `policy` nor `make_policy()` (expected one of them)")
+    missing = [m for m in ("init", "initial_state", "act", "name", "action_type") if not hasattr(pol, m)]
+    if missing:
+        raise DriveE2EError(f"{path}: policy object lacks {', '.join(missing)} (see drivee2e_jax.policy.Policy)")
+    if pol.action_type not in ("controls", "waypoints"):
+        raise DriveE2EError(f"{path}: action_type is {pol.action_type!r}, expected 'controls' or 'waypoints'")
+    return pol

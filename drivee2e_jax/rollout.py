@@ -1,0 +1,166 @@
+"""Rollouts: ``lax.scan`` over time inside ``jit``, ``vmap`` over scenarios.
+
+A whole suite split steps as one compiled program. Time is advanced in chunks
+of ``chunk`` steps (one compiled ``advance`` reused for every chunk) so the
+host can draw a progress bar and stop early once every episode is done; the
+result is identical to a single scan.
+
+Control timing (Behavior Metrics' synchronous / asynchronous modes): the
+policy is queried every ``control_every`` simulation steps and its action is
+held in between; ``latency`` delays each action by that many steps (the
+previous action stays applied meanwhile; the first actions are a full brake).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from drivee2e_jax.sim import Simulator, SimState, StepLog
+from drivee2e_jax.types import Controls, Scenario, Waypoints
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlTiming:
+    """When the policy runs. ``control_every`` >= 1 steps, ``latency`` >= 0 steps."""
+
+    control_every: int = 1
+    latency: int = 0
+
+    def __post_init__(self):
+        if self.control_every < 1:
+            raise ValueError(f"ControlTiming.control_every must be >= 1, got {self.control_every}")
+        if self.latency < 0:
+            raise ValueError(f"ControlTiming.latency must be >= 0, got {self.latency}")
+
+
+@struct.dataclass
+class Carry:
+    """Rollout carry for one scenario."""
+
+    sim: SimState
+    obs: Any
+    policy_state: Any
+    held: Any  # the action currently applied
+    queue: Any  # (latency, ...) actions waiting to take effect
+    key: jnp.ndarray
+
+
+def _brake_like(action):
+    """A neutral action of the same structure (full brake / stay in place)."""
+    if isinstance(action, Controls):
+        z = jnp.zeros_like(action.throttle)
+        return Controls(throttle=z, brake=jnp.ones_like(action.brake), steer=z)
+    if isinstance(action, Waypoints):
+        return Waypoints(xy=jnp.zeros_like(action.xy))
+    return jax.tree_util.tree_map(jnp.zeros_like, action)
+
+
+class Rollout:
+    """Runs a policy on a batch of scenarios.
+
+    Usage::
+
+        ro = Rollout(sim, policy, params)
+        carry = ro.init(batch, key)               # vmapped reset
+        carry, logs = ro.advance(carry, batch)    # `chunk` steps, jitted
+    """
+
+    def __init__(self, sim: Simulator, policy, params=None, *, timing: ControlTiming | None = None, chunk: int = 50):
+        self.sim = sim
+        self.policy = policy
+        self.params = params
+        self.timing = timing or ControlTiming()
+        self.chunk = int(chunk)
+        self.init = jax.jit(jax.vmap(self._init_one, in_axes=(0, 0, None)))
+        self.init = _with_params(self.init, lambda: self.params)
+        self.advance = jax.jit(jax.vmap(self._advance_one, in_axes=(0, 0, None)))
+        self.advance = _with_params(self.advance, lambda: self.params)
+
+    # one scenario -----------------------------------------------------------
+    def _init_one(self, scenario: Scenario, key, params) -> Carry:
+        k_reset, k_pol, key = jax.random.split(key, 3)
+        sim_state, obs = self.sim.reset(k_reset, scenario)
+        pstate = self.policy.initial_state(obs)
+        action, _ = self.policy.act(params, obs, pstate, k_pol)
+        neutral = _brake_like(action)
+        queue = jax.tree_util.tree_map(lambda a: jnp.stack([a] * self.timing.latency), neutral) if self.timing.latency else None
+        return Carry(sim=sim_state, obs=obs, policy_state=pstate, held=neutral, queue=queue, key=key)
+
+    def _step_one(self, scenario: Scenario, carry: Carry, params):
+        key, k_act = jax.random.split(carry.key)
+        query = (carry.sim.step % self.timing.control_every) == 0
+        proposed, pstate = self.policy.act(params, carry.obs, carry.policy_state, k_act)
+        pick = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(query, a, b), new, old)  # noqa: E731
+        pstate = pick(pstate, carry.policy_state)
+        if self.timing.latency:
+            # Enqueue the newly decided action; apply the oldest one.
+            fresh = pick(proposed, jax.tree_util.tree_map(lambda q: q[-1], carry.queue))
+            applied = jax.tree_util.tree_map(lambda q: q[0], carry.queue)
+            queue = jax.tree_util.tree_map(lambda q, a: jnp.concatenate([q[1:], a[None]]), carry.queue, fresh)
+        else:
+            applied = pick(proposed, carry.held)
+            queue = None
+        sim_state, obs, log = self.sim.step(scenario, carry.sim, applied)
+        return Carry(sim=sim_state, obs=obs, policy_state=pstate, held=applied, queue=queue, key=key), log
+
+    def _advance_one(self, scenario: Scenario, carry: Carry, params):
+        def body(c, _):
+            return self._step_one(scenario, c, params)
+
+        return jax.lax.scan(body, carry, None, length=self.chunk)
+
+    # host loop --------------------------------------------------------------
+    def run(self, batch: Scenario, key, *, max_steps: int | None = None, progress: Callable[[int], None] | None = None):
+        """Roll out until every episode is done or ``max_steps``.
+
+        Returns (final Carry, StepLog stacked as (B, T_sim, ...) numpy arrays).
+        ``progress(n_steps)`` is called after each chunk.
+        """
+        b = int(batch.ego_index.shape[0])
+        keys = jax.random.split(key, b)
+        carry = self.init(batch, keys)
+        if max_steps is None:
+            max_steps = int(np.max(np.asarray(jax.vmap(self.sim.episode_steps)(batch))))
+        logs = []
+        done_steps = 0
+        while done_steps < max_steps:
+            carry, log = self.advance(batch, carry)
+            logs.append(jax.tree_util.tree_map(np.asarray, log))
+            done_steps += self.chunk
+            if progress is not None:
+                progress(min(self.chunk, max_steps - done_steps + self.chunk))
+            if bool(np.all(np.asarray(carry.sim.episode.done))):
+                break
+        stacked = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *logs)
+        return carry, stacked
+
+
+def _with_params(fn, get_params):
+    """Bind the policy params as the jitted function's last (broadcast) argument."""
+
+    def call(*args):
+        return fn(*args, get_params())
+
+    call.lower = lambda *args: fn.lower(*args, get_params())  # for compile timing
+    return call
+
+
+def shard_batch(batch, devices=None):
+    """Place a batched pytree with its leading axis split over ``devices``.
+
+    The batch size must be divisible by the device count (pad the batch with
+    ``scenario.pack`` sizes or drop the remainder). With one device this is a
+    plain ``device_put``. jit then runs each shard where it lives.
+    """
+    devices = devices or jax.devices()
+    if len(devices) == 1:
+        return jax.device_put(batch, devices[0])
+    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+    spec = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+    return jax.device_put(batch, spec)

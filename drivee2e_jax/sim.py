@@ -1,0 +1,371 @@
+"""The simulator: ``reset`` and ``step`` for ONE scenario, pure and jittable.
+
+Per step: sanitise the action -> controls (waypoints go through the
+controller) -> kinematic bicycle -> replay every logged agent and the signals
+at the new time -> infraction facts (``infractions``) -> leaderboard criteria
+(``metrics.criteria``) -> observation. Non-ego agents never react.
+
+The scenario is passed explicitly to ``step`` (as gymnax passes ``EnvParams``)
+rather than stored in the state, so the static log is not carried through the
+``lax.scan``. Batch with ``jax.vmap`` (see ``rollout``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from drivee2e_jax import controller as ctl
+from drivee2e_jax import dynamics, geometry, infractions, replay
+from drivee2e_jax.metrics import episode as ep
+from drivee2e_jax.metrics.driving_score import ScoreConfig
+from drivee2e_jax.observe.vector import ObsConfig, observe
+from drivee2e_jax.types import Controls, EgoState, Observation, Privileged, Scenario, Waypoints
+
+#: Lanes near the route considered for the off-lane test and the lane observation.
+NUM_CANDIDATE_LANES = 16
+
+#: Scoring presets by name (``--preset``); ``paper`` is the default.
+SCORE_PRESETS = ("paper", "drivee2e", "lb20", "lb21", "b2d")
+
+
+def score_preset(name: str) -> ScoreConfig:
+    """A scoring preset by name.
+
+    ``paper`` (default) is DriveE2E as its paper defines it (App. A): Driving
+    Score with Leaderboard 2.0 penalties, RC threshold 97 % as in its code,
+    blocked after 60 s, and Success = route completed "without collisions or
+    traffic violations", so red light and outside-route-lanes are ON (its code
+    comments them out; see ``drivee2e``). The time cap is the scenario's log
+    length (the source's 12 s cap is its clip length; twin15 logs are 20 s).
+    Minimum speed is OFF: under non-reactive replay the surrounding traffic
+    includes cross traffic moving on its green, which would penalise the
+    correct stop at a red light; the source's replayed actors carry no
+    ``background`` role, so its checkpoints get no samples either (v = 100).
+    The other names are ``ScoreConfig`` presets (``drivee2e`` = the source
+    code's exact rules incl. its 12.1 s cap).
+    """
+    if name == "paper":
+        return dataclasses.replace(
+            ScoreConfig.drivee2e(), name="paper", time_cap_s=None, red_light=True, outside_lanes=True, min_speed=False
+        )
+    if name not in SCORE_PRESETS:
+        raise ValueError(f"unknown score preset {name!r}; expected one of {', '.join(SCORE_PRESETS)}")
+    return ScoreConfig.preset(name)
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """Simulator settings (static under jit).
+
+    Attributes:
+      dt: simulation step, s (the log may have another step; replay interpolates).
+      dynamics: kinematic bicycle parameters.
+      controller: PID + pure-pursuit parameters for waypoint actions.
+      obs: which observations and their sizes.
+      score: leaderboard criteria and penalties (preset ``paper`` by default).
+      max_episode_s: episode cap in seconds; ``None`` = the scenario's log length.
+    """
+
+    dt: float = 0.1
+    dynamics: dynamics.BicycleParams = dataclasses.field(default_factory=dynamics.BicycleParams)
+    controller: ctl.ControllerParams = dataclasses.field(default_factory=ctl.ControllerParams)
+    obs: ObsConfig = dataclasses.field(default_factory=ObsConfig)
+    score: ScoreConfig = dataclasses.field(default_factory=lambda: score_preset("paper"))
+    max_episode_s: float | None = None
+
+    def __post_init__(self):
+        if not self.dt > 0:
+            raise ValueError(f"SimConfig.dt must be > 0 s, got {self.dt}")
+        if self.max_episode_s is not None and not self.max_episode_s > 0:
+            raise ValueError(f"SimConfig.max_episode_s must be > 0 s, got {self.max_episode_s}")
+
+
+@struct.dataclass
+class SimContext:
+    """Per-episode constants derived from the scenario once, at reset.
+
+    Attributes:
+      lanes:     (M,) int32 candidate lane rows near the route (-1 padded).
+      stop_dir:  (S, 2) float32 travel direction across each stop line.
+      stop_arc:  (S,) float32 route arc where the route crosses each stop line
+                 (inf if it does not).
+      ego_lw:    (2,) float32 ego length and width, m.
+    """
+
+    lanes: jnp.ndarray
+    stop_dir: jnp.ndarray
+    stop_arc: jnp.ndarray
+    ego_lw: jnp.ndarray
+
+
+@struct.dataclass
+class SimState:
+    """Everything that changes during an episode (one scenario).
+
+    Attributes:
+      ego: EgoState.
+      step: () int32 steps taken.
+      episode: ``metrics.episode.EpisodeCarry`` leaderboard criteria + counts.
+      controller: ControllerState for waypoint actions.
+      ctx: SimContext.
+      key: PRNG key for observation noise.
+    """
+
+    ego: EgoState
+    step: jnp.ndarray
+    episode: ep.EpisodeCarry
+    controller: ctl.ControllerState
+    ctx: SimContext
+    key: jnp.ndarray
+
+    @property
+    def done(self):
+        return self.episode.done
+
+
+@struct.dataclass
+class StepLog:
+    """Per-step record; the rollout stacks it into an episode log (T_sim, ...).
+
+    Attributes:
+      t: () s after the step.  xy: (2,) m.  yaw, speed, accel, steer, yaw_rate.
+      throttle, brake, steer_cmd: the applied (sanitised) controls.
+      active: () bool, the episode was running during this step.
+      facts: ``infractions.StepFacts`` of this step.
+      events: ``metrics.episode.StepEvents`` counted this step.
+      route_completion: () % after the step.
+    """
+
+    t: jnp.ndarray
+    xy: jnp.ndarray
+    yaw: jnp.ndarray
+    speed: jnp.ndarray
+    accel: jnp.ndarray
+    steer: jnp.ndarray
+    yaw_rate: jnp.ndarray
+    throttle: jnp.ndarray
+    brake: jnp.ndarray
+    steer_cmd: jnp.ndarray
+    active: jnp.ndarray
+    facts: infractions.StepFacts
+    events: ep.StepEvents
+    route_completion: jnp.ndarray
+
+
+def _candidate_lanes(scenario: Scenario, m: int):
+    """Rows of the ``m`` lanes closest to the route (static per episode)."""
+    lanes = scenario.map.lanes
+    route = scenario.route
+    # Distance from each lane point to the nearest route point (coarse: every 4th).
+    rp = route.xy[::4]
+    rv = route.valid[::4]
+    d = jnp.linalg.norm(lanes.xy[:, :, None, :] - rp[None, None], axis=-1)
+    d = jnp.where(lanes.point_valid[:, :, None] & rv[None, None], d, jnp.inf)
+    dmin = d.min(axis=(1, 2))
+    dmin = jnp.where(lanes.valid, dmin, jnp.inf)
+    k = min(m, dmin.shape[0])
+    _, idx = jax.lax.top_k(-dmin, k)
+    idx = jnp.where(jnp.isfinite(dmin[idx]), idx, -1)
+    if k < m:
+        idx = jnp.pad(idx, (0, m - k), constant_values=-1)
+    return idx.astype(jnp.int32)
+
+
+def _route_stop_arcs(scenario: Scenario):
+    """(S,) route arc at which the route crosses each stop line (inf if never)."""
+    route = scenario.route
+    p, q = route.xy[:-1], route.xy[1:]
+    seg_ok = route.valid[:-1] & route.valid[1:]
+
+    def one(line, valid):
+        hit = jax.vmap(geometry.segments_intersect, in_axes=(0, 0, None, None))(p, q, line[0], line[1])
+        hit = hit & seg_ok & valid
+        return jnp.where(hit.any(), route.arc[jnp.argmax(hit)], jnp.inf)
+
+    return jax.vmap(one)(scenario.map.stop_lines, scenario.map.stop_line_valid)
+
+
+def _lane_rows(scenario: Scenario, idx):
+    lanes = scenario.map.lanes
+    safe = jnp.maximum(idx, 0)
+    return (
+        lanes.xy[safe],
+        lanes.point_valid[safe] & (idx >= 0)[:, None],
+        lanes.valid[safe] & (idx >= 0),
+        scenario.map.lane_width[safe],
+    )
+
+
+class Simulator:
+    """``reset(key, scenario)`` and ``step(scenario, state, action)``.
+
+    Holds only the static ``SimConfig``; every method is a pure function of
+    its arguments and may be jitted / vmapped.
+    """
+
+    def __init__(self, config: SimConfig | None = None):
+        self.config = config or SimConfig()
+
+    # -- helpers -----------------------------------------------------------
+    def _agents(self, scenario: Scenario, t):
+        agents = replay.agents_at(scenario.tracks, t, scenario.dt_log)
+        not_ego = jnp.arange(agents.valid.shape[0]) != scenario.ego_index
+        return agents.replace(valid=agents.valid & not_ego)
+
+    def _privileged(self, scenario: Scenario, ego: EgoState) -> Privileged:
+        cfg = self.config
+        nxt = replay.agents_at(scenario.tracks, ego.t + cfg.dt, scenario.dt_log)
+        i = scenario.ego_index
+        controls = dynamics.inverse(ego, nxt.xy[i], nxt.yaw[i], cfg.dt, cfg.dynamics)
+        return Privileged(
+            ego=ego, log_next_xy=nxt.xy[i], log_next_yaw=nxt.yaw[i], log_valid=nxt.valid[i], log_controls=controls
+        )
+
+    def _observe(self, scenario: Scenario, state: SimState, agents, key) -> Observation:
+        lane_xy, lane_pv, _, _ = _lane_rows(scenario, state.ctx.lanes)
+        signals = replay.signals_at(scenario.signals, state.ego.t, scenario.dt_log)
+        return observe(
+            ego=state.ego,
+            agents=agents,
+            size=scenario.tracks.size,
+            category=scenario.tracks.category,
+            route=scenario.route,
+            route_index=ep.route_index(state.episode),
+            progress_arc=ep.progress_arc(state.episode, scenario.route),
+            lane_xy=lane_xy,
+            lane_valid=lane_pv,
+            stop_arc=state.ctx.stop_arc,
+            stop_state=signals,
+            privileged=self._privileged(scenario, state.ego),
+            key=key,
+            cfg=self.config.obs,
+        )
+
+    def episode_steps(self, scenario: Scenario):
+        """() int32 number of steps this scenario runs at most."""
+        dur = scenario.duration
+        for cap in (self.config.max_episode_s, self.config.score.time_cap_s):
+            if cap is not None:
+                dur = jnp.minimum(dur, cap)
+        return jnp.floor(dur / self.config.dt + 1e-4).astype(jnp.int32)
+
+    # -- public ------------------------------------------------------------
+    def reset(self, key, scenario: Scenario) -> tuple[SimState, Observation]:
+        """Ego on its logged pose at t = 0; criteria initialised on the route."""
+        tr = scenario.tracks
+        i = scenario.ego_index
+        ego = dynamics.ego_from_log(tr.xy[i, 0], tr.yaw[i, 0], tr.vel[i, 0], jnp.zeros((), jnp.float32))
+        ctx = SimContext(
+            lanes=_candidate_lanes(scenario, NUM_CANDIDATE_LANES),
+            stop_dir=infractions.stop_line_directions(scenario.map),
+            stop_arc=_route_stop_arcs(scenario),
+            ego_lw=tr.size[i, :2],
+        )
+        key, k_obs = jax.random.split(key)
+        state = SimState(
+            ego=ego,
+            step=jnp.zeros((), jnp.int32),
+            episode=ep.init(scenario.route, self.config.score),
+            controller=ctl.init_controller_state(),
+            ctx=ctx,
+            key=key,
+        )
+        obs = self._observe(scenario, state, self._agents(scenario, ego.t), k_obs)
+        return state, obs
+
+    def to_controls(self, state: SimState, action) -> tuple[Controls, ctl.ControllerState, jnp.ndarray]:
+        """Sanitised controls for ``action`` and whether it had to be repaired."""
+        if isinstance(action, Waypoints):
+            wp = action.xy
+            bad = ~jnp.all(jnp.isfinite(wp))
+            wp = jnp.where(jnp.isfinite(wp), wp, 0.0)
+            controls, cstate = ctl.waypoints_to_controls(wp, state.ego.speed, state.controller, self.config.controller)
+        elif isinstance(action, Controls):
+            controls, cstate, bad = action, state.controller, jnp.zeros((), bool)
+        else:
+            raise TypeError(f"action must be Controls or Waypoints, got {type(action).__name__}")
+        controls, repaired = sanitize_controls(controls)
+        return controls, cstate, bad | repaired
+
+    def step(self, scenario: Scenario, state: SimState, action) -> tuple[SimState, Observation, StepLog]:
+        """Advance one ``dt``. A finished episode stays frozen (``active`` False)."""
+        cfg = self.config
+        active = ~state.episode.done
+        controls, cstate, invalid = self.to_controls(state, action)
+        ego = dynamics.step(state.ego, controls, cfg.dt, cfg.dynamics)
+        agents = self._agents(scenario, ego.t)
+        signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
+        facts = self._facts(scenario, state, ego, agents, signals)
+        truncate = state.step + 1 >= self.episode_steps(scenario)
+        episode, events = ep.update(
+            state.episode, scenario.route, ego, facts, invalid, truncate, cfg.dt, cfg.score
+        )
+        key, k_obs = jax.random.split(state.key)
+        new = SimState(ego=ego, step=state.step + 1, episode=episode, controller=cstate, ctx=state.ctx, key=key)
+        # Freeze finished episodes: keep the old state, record nothing.
+        new = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, state)
+        obs = self._observe(scenario, new, agents, k_obs)
+        log = StepLog(
+            t=new.ego.t,
+            xy=new.ego.xy,
+            yaw=new.ego.yaw,
+            speed=new.ego.speed,
+            accel=new.ego.accel,
+            steer=new.ego.steer,
+            yaw_rate=new.ego.yaw_rate,
+            throttle=controls.throttle,
+            brake=controls.brake,
+            steer_cmd=controls.steer,
+            active=active,
+            facts=facts,
+            events=jax.tree_util.tree_map(lambda e: jnp.where(active, e, jnp.zeros_like(e)), events),
+            route_completion=new.episode.route_completion,
+        )
+        return new, obs, log
+
+    def _facts(self, scenario: Scenario, state: SimState, ego: EgoState, agents, signals):
+        tr = scenario.tracks
+        lw = state.ctx.ego_lw
+        hit, hit_id, hit_cls, hit_cat = infractions.agent_contacts(ego, lw, agents, tr.size, tr.category, tr.track_id)
+        red, red_i, red_lines = infractions.red_light_crossing(
+            state.ego, ego, lw[0], scenario.map, state.ctx.stop_dir, signals
+        )
+        lane_xy, lane_pv, lane_ok, lane_w = _lane_rows(scenario, state.ctx.lanes)
+        off, offset = infractions.lane_status(ego, lane_xy, lane_pv, lane_ok, lane_w)
+        bg, bg_ok = infractions.background_speed(ego, agents, tr.category)
+        return infractions.StepFacts(
+            agent_hit=hit,
+            agent_hit_id=hit_id,
+            agent_hit_class=hit_cls,
+            agent_hit_category=hit_cat,
+            layout_hit=infractions.layout_contact(ego, lw, scenario.map),
+            red_light=red,
+            red_light_index=red_i,
+            red_light_lines=red_lines,
+            off_lane=off,
+            lane_offset=offset,
+            bg_speed=bg,
+            bg_present=bg_ok,
+            front_distance=infractions.front_distance(ego, lw, agents, tr.size),
+        )
+
+
+def sanitize_controls(c: Controls) -> tuple[Controls, jnp.ndarray]:
+    """Clamp to the valid ranges; NaN/inf -> full brake, no steer.
+
+    Returns the repaired controls and whether anything was out of range or
+    non-finite (counted as ``invalid_action`` for the scenario; never allowed
+    to poison other scenarios of the batch).
+    """
+    vals = jnp.stack([c.throttle, c.brake, c.steer]).astype(jnp.float32)
+    finite = jnp.all(jnp.isfinite(vals))
+    lo = jnp.array([0.0, 0.0, -1.0])
+    hi = jnp.array([1.0, 1.0, 1.0])
+    in_range = jnp.all((vals >= lo - 1e-6) & (vals <= hi + 1e-6))
+    clipped = jnp.clip(jnp.where(jnp.isfinite(vals), vals, 0.0), lo, hi)
+    safe = jnp.where(finite, clipped, jnp.array([0.0, 1.0, 0.0]))
+    return Controls(throttle=safe[0], brake=safe[1], steer=safe[2]), ~(finite & in_range)
