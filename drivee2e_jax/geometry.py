@@ -1,0 +1,351 @@
+"""Planar geometry: frames, oriented boxes, polygons, segments, polylines.
+
+Every function is pure JAX and written for ONE item (one point, one box, one
+polygon); callers ``jax.vmap``. Padded inputs carry a ``valid`` mask and
+invalid entries never influence a result. World frame: x east, y north, yaw
+counter-clockwise from +x, metres and radians. A *local* (ego) frame has x
+forward and y left.
+
+Conventions shared by the predicates (all within a tolerance ``eps`` in m):
+
+* boxes / polygons *overlap* only when they share interior: touching edges or
+  corners are NOT an overlap (a car parked bumper-to-bumper does not collide);
+* segments *intersect* when the closed segments share a point: touching at an
+  end point, a T-junction or a collinear overlap all count (a stop line touched
+  by the ego's tail counts as crossed);
+* a point is *in* a polygon by the even-odd crossing rule; points exactly on
+  the boundary may go either way.
+
+Gradients: distances use a zero-safe norm, so gradients are finite (zero at
+the exact degenerate point) rather than NaN; min/argmin selections are
+piecewise smooth.
+
+Ray casting (LiDAR-like range sensing against boxes and polygon edges) will
+live here too, as ``ray_segment_distance`` / ``ray_box_distance`` built on the
+same segment algebra; it arrives with the sensor issue.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+Array = jnp.ndarray
+
+#: Default tolerance of the boolean predicates, m. float32 world coordinates
+#: of a few hundred metres carry ~1e-5 m of rounding, so stay well above it.
+EPS = 1e-4
+
+_TINY = 1e-12  # squared-length floor below which a vector counts as zero
+
+
+# --------------------------------------------------------------------------
+# Angles and frames
+# --------------------------------------------------------------------------
+
+
+def wrap_angle(a: Array) -> Array:
+    """Wrap angles to (-pi, pi]. Elementwise; derivative 1 everywhere."""
+    two_pi = 2.0 * jnp.pi
+    return a + two_pi * jnp.floor((jnp.pi - a) / two_pi)
+
+
+def rotate(v: Array, yaw: Array) -> Array:
+    """Rotate vectors ``v (..., 2)`` counter-clockwise by ``yaw`` (rad, broadcast
+    against ``v[..., 0]``)."""
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    x, y = v[..., 0], v[..., 1]
+    return jnp.stack([c * x - s * y, s * x + c * y], axis=-1)
+
+
+def to_frame(points: Array, origin: Array, yaw: Array) -> Array:
+    """World points ``(..., 2)`` -> the local frame at ``origin (2,)`` with
+    heading ``yaw`` (x forward, y left)."""
+    return rotate(points - origin, -yaw)
+
+
+def from_frame(points: Array, origin: Array, yaw: Array) -> Array:
+    """Local points ``(..., 2)`` (x forward, y left) of the frame at ``origin``
+    with heading ``yaw`` -> world points ``(..., 2)``. Inverse of ``to_frame``."""
+    return rotate(points, yaw) + origin
+
+
+def _cross(a: Array, b: Array) -> Array:
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _dot(a: Array, b: Array) -> Array:
+    return jnp.sum(a * b, axis=-1)
+
+
+def safe_norm(v: Array) -> Array:
+    """|v| with a zero (not NaN) gradient at v = 0."""
+    sq = _dot(v, v)
+    ok = sq > _TINY
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+
+
+def _unit(v: Array) -> tuple[Array, Array]:
+    """(v / |v|, nonzero); zero vectors map to (1, 0) so callers can mask them."""
+    n = safe_norm(v)
+    ok = n > jnp.sqrt(_TINY)
+    u = jnp.where(ok[..., None], v / jnp.where(ok, n, 1.0)[..., None], jnp.array([1.0, 0.0]))
+    return u, ok
+
+
+# --------------------------------------------------------------------------
+# Oriented boxes (SAT)
+# --------------------------------------------------------------------------
+
+
+def box_corners(xy: Array, yaw: Array, length: Array, width: Array) -> Array:
+    """Corners ``(4, 2)`` of a box centred at ``xy (2,)`` with heading ``yaw``,
+    counter-clockwise from the front-right corner (FR, FL, RL, RR)."""
+    hl, hw = 0.5 * length, 0.5 * width
+    local = jnp.stack(
+        [jnp.stack([hl, -hw]), jnp.stack([hl, hw]), jnp.stack([-hl, hw]), jnp.stack([-hl, -hw])]
+    )
+    return from_frame(local, xy, yaw)
+
+
+def _box_axes(yaw: Array) -> Array:
+    """(2, 2) unit axes of a box: forward, left."""
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    return jnp.stack([jnp.stack([c, s]), jnp.stack([-s, c])])
+
+
+def _box_radius(axes_n: Array, yaw: Array, lw: Array) -> Array:
+    """Half-extent of a box (heading ``yaw``, ``lw`` = length, width) projected
+    on unit axes ``axes_n (k, 2)`` -> (k,)."""
+    u = _box_axes(yaw)
+    return 0.5 * (jnp.abs(axes_n @ u[0]) * lw[0] + jnp.abs(axes_n @ u[1]) * lw[1])
+
+
+def box_penetration(
+    xy_a: Array, yaw_a: Array, lw_a: Array, xy_b: Array, yaw_b: Array, lw_b: Array
+) -> Array:
+    """Signed overlap depth of two oriented boxes, m.
+
+    The minimum over the four separating-axis candidates of the projected
+    overlap. Positive: the boxes overlap and this is the shortest translation
+    separating them. Non-positive: they are apart and ``-value`` is a lower
+    bound of the gap (exact when the closest features are parallel edges).
+    Piecewise smooth, so usable as a soft collision penalty.
+
+    Args:
+      xy_a, xy_b: (2,) box centres, m.  yaw_a, yaw_b: () headings, rad.
+      lw_a, lw_b: (2,) length, width, m (a ``Tracks.size[:2]`` row works).
+    """
+    axes = jnp.concatenate([_box_axes(yaw_a), _box_axes(yaw_b)])  # (4, 2)
+    centre_gap = jnp.abs(axes @ (xy_b - xy_a))
+    overlap = _box_radius(axes, yaw_a, lw_a) + _box_radius(axes, yaw_b, lw_b) - centre_gap
+    return jnp.min(overlap)
+
+
+def boxes_overlap(
+    xy_a: Array,
+    yaw_a: Array,
+    lw_a: Array,
+    xy_b: Array,
+    yaw_b: Array,
+    lw_b: Array,
+    eps: float = EPS,
+) -> Array:
+    """() bool: the two oriented boxes share interior (depth > ``eps`` m);
+    touching edges do not count. Arguments as ``box_penetration``."""
+    return box_penetration(xy_a, yaw_a, lw_a, xy_b, yaw_b, lw_b) > eps
+
+
+# --------------------------------------------------------------------------
+# Padded polygons
+# --------------------------------------------------------------------------
+
+
+def _closed_edges(poly: Array, valid: Array) -> tuple[Array, Array, Array]:
+    """Edges of a padded polygon, closed, skipping invalid vertices.
+
+    Each invalid vertex is replaced by the previous valid one (cyclically), so
+    edge i runs from vertex i to vertex i+1 (mod V) and edges touching padding
+    collapse to zero length. Works for any validity pattern, not only prefixes.
+
+    Returns (start (V,2), end (V,2), edge_valid (V,)) with edge_valid False for
+    the zero-length edges.
+    """
+    n = poly.shape[0]
+    idx = jnp.arange(n)
+    last_valid = jnp.max(jnp.where(valid, idx, -1))
+    fill = jax.lax.cummax(jnp.where(valid, idx, -1))
+    fill = jnp.where(fill < 0, last_valid, fill)
+    fill = jnp.maximum(fill, 0)  # all-invalid polygon: every edge degenerate
+    pts = poly[fill]
+    start, end = pts, jnp.roll(pts, -1, axis=0)
+    edge_valid = (fill != jnp.roll(fill, -1)) & jnp.any(valid)
+    return start, end, edge_valid
+
+
+def point_in_polygon(p: Array, poly: Array, poly_valid: Array) -> Array:
+    """() bool: ``p (2,)`` inside the padded polygon ``poly (V, 2)`` (even-odd
+    crossing rule; simple non-convex polygons fine; implicitly closed;
+    ``poly_valid (V,)`` masks padding). False with fewer than 3 valid vertices.
+    """
+    a, b, ok = _closed_edges(poly, poly_valid)
+    straddles = (a[:, 1] > p[1]) != (b[:, 1] > p[1])
+    dy = jnp.where(straddles, b[:, 1] - a[:, 1], 1.0)
+    x_cross = a[:, 0] + (p[1] - a[:, 1]) * (b[:, 0] - a[:, 0]) / dy
+    crossings = straddles & ok & (p[0] < x_cross)
+    return (jnp.sum(crossings) % 2) == 1
+
+
+def convex_polygon_box_penetration(
+    poly: Array, poly_valid: Array, xy: Array, yaw: Array, lw: Array
+) -> Array:
+    """Signed SAT overlap depth (m) of a padded convex polygon and a box.
+
+    Args:
+      poly: (V, 2) vertices (either winding), m.  poly_valid: (V,) bool.
+      xy: (2,) box centre, m.  yaw: () rad.  lw: (2,) length, width, m.
+
+    Returns () float: > 0 overlap depth, <= 0 apart (``-value`` bounds the gap
+    from below). ``-inf`` when the polygon has no valid vertex. Degenerate
+    polygons (a segment, a point) are handled as their convex hull.
+    """
+    a, b, ok = _closed_edges(poly, poly_valid)
+    normals, nonzero = _unit(jnp.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=-1))
+    axes = jnp.concatenate([normals, _box_axes(yaw)])  # (V + 2, 2)
+    axis_ok = jnp.concatenate([ok & nonzero, jnp.array([True, True])])
+    proj = poly @ axes.T  # (V, V + 2)
+    hi = jnp.max(jnp.where(poly_valid[:, None], proj, -jnp.inf), axis=0)
+    lo = jnp.min(jnp.where(poly_valid[:, None], proj, jnp.inf), axis=0)
+    c = axes @ xy
+    r = _box_radius(axes, yaw, lw)
+    overlap = jnp.minimum(hi - (c - r), (c + r) - lo)
+    depth = jnp.min(jnp.where(axis_ok, overlap, jnp.inf))
+    return jnp.where(jnp.any(poly_valid), depth, -jnp.inf)
+
+
+def convex_polygon_box_overlap(
+    poly: Array, poly_valid: Array, xy: Array, yaw: Array, lw: Array, eps: float = EPS
+) -> Array:
+    """() bool: a padded convex polygon (static obstacle footprint) and a box
+    share interior (SAT depth > ``eps`` m). Arguments as
+    ``convex_polygon_box_penetration``."""
+    return convex_polygon_box_penetration(poly, poly_valid, xy, yaw, lw) > eps
+
+
+# --------------------------------------------------------------------------
+# Segments
+# --------------------------------------------------------------------------
+
+
+def point_segment_distance(p: Array, a: Array, b: Array) -> Array:
+    """() distance (m) from ``p (2,)`` to the closed segment ``a``-``b``."""
+    d = b - a
+    t = jnp.clip(_dot(p - a, d) / jnp.maximum(_dot(d, d), _TINY), 0.0, 1.0)
+    return safe_norm(p - (a + t * d))
+
+
+def segment_distance(p1: Array, p2: Array, q1: Array, q2: Array) -> Array:
+    """() distance (m) between closed segments p1-p2 and q1-q2 (0 if they cross)."""
+    cross = (_cross(q2 - q1, p1 - q1) * _cross(q2 - q1, p2 - q1) < 0) & (
+        _cross(p2 - p1, q1 - p1) * _cross(p2 - p1, q2 - p1) < 0
+    )
+    d = jnp.min(
+        jnp.stack(
+            [
+                point_segment_distance(p1, q1, q2),
+                point_segment_distance(p2, q1, q2),
+                point_segment_distance(q1, p1, p2),
+                point_segment_distance(q2, p1, p2),
+            ]
+        )
+    )
+    return jnp.where(cross, 0.0, d)
+
+
+def segments_intersect(p1: Array, p2: Array, q1: Array, q2: Array, eps: float = EPS) -> Array:
+    """() bool: the closed segments p1-p2 and q1-q2 (each (2,)) share a point,
+    within ``eps`` m: proper crossings, touching end points, T-junctions and
+    collinear overlaps all count (segment distance <= eps)."""
+    return segment_distance(p1, p2, q1, q2) <= eps
+
+
+# --------------------------------------------------------------------------
+# Polylines
+# --------------------------------------------------------------------------
+
+
+@struct.dataclass
+class Projection:
+    """The foot point of a point on a padded polyline.
+
+    Attributes:
+      distance: () m, unsigned distance to the polyline (+inf if no valid point).
+      lateral:  () m, signed offset perpendicular to the foot segment's
+        direction, + = left of the driving direction. Equal to +-distance when
+        the foot lies inside a segment; beyond the end points it is the offset
+        from the extended end segment (Frenet-like); 0 for a one-point polyline.
+      arc:      () m, arc length of the foot point from the first valid point
+        (invalid gaps contribute nothing).
+      segment:  () int32, index i of the foot segment (points i, i+1), or of
+        the lone point; -1 if no valid point.
+      heading:  () rad, direction of the foot segment (0 for a lone point).
+      valid:    () bool, the polyline has a valid point.
+    """
+
+    distance: Array
+    lateral: Array
+    arc: Array
+    segment: Array
+    heading: Array
+    valid: Array
+
+
+def project_to_polyline(p: Array, xy: Array, valid: Array) -> Projection:
+    """Project ``p (2,)`` on the padded polyline ``xy (N, 2)``, ``valid (N,)``.
+
+    Segment i (points i, i+1) counts iff both ends are valid. A valid point
+    with no valid segment after it (a lone point, or the polyline end) is a
+    candidate on its own, so a single-point polyline projects onto that point.
+    Ties go to the lower index.
+    """
+    a = xy
+    seg_ok = valid[:-1] & valid[1:]
+    b = jnp.concatenate([jnp.where(seg_ok[:, None], xy[1:], xy[:-1]), xy[-1:]])  # (N, 2)
+    d = b - a
+    seg_len = safe_norm(d)
+    t = jnp.clip(_dot(p - a, d) / jnp.maximum(_dot(d, d), _TINY), 0.0, 1.0)
+    foot = a + t[:, None] * d
+    dist = safe_norm(p - foot)
+    i = jnp.argmin(jnp.where(valid, dist, jnp.inf))
+
+    cum = jnp.concatenate([jnp.zeros(1), jnp.cumsum(seg_len[:-1])])
+    tangent, _ = _unit(d[i])
+    any_valid = jnp.any(valid)
+    return Projection(
+        distance=jnp.where(any_valid, dist[i], jnp.inf),
+        lateral=_cross(tangent, p - a[i]) * (seg_len[i] > 0),
+        arc=cum[i] + t[i] * seg_len[i],
+        segment=jnp.where(any_valid, i, -1).astype(jnp.int32),
+        heading=jnp.arctan2(tangent[1], tangent[0]),
+        valid=any_valid,
+    )
+
+
+def distance_to_polylines(
+    p: Array, xy: Array, point_valid: Array, valid: Array
+) -> tuple[Array, Array]:
+    """Nearest of a padded set of polylines.
+
+    Args:
+      p: (2,) point, m.  xy: (P, N, 2).  point_valid: (P, N).  valid: (P,).
+
+    Returns:
+      (distance () m, +inf if none; index () int32 of the nearest polyline, -1
+      if none).
+    """
+    proj = jax.vmap(project_to_polyline, in_axes=(None, 0, 0))(p, xy, point_valid)
+    ok = valid & proj.valid
+    dist = jnp.where(ok, proj.distance, jnp.inf)
+    i = jnp.argmin(dist)
+    return dist[i], jnp.where(jnp.any(ok), i, -1).astype(jnp.int32)
