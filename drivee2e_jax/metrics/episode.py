@@ -211,6 +211,7 @@ class EpisodeResult:
       success: () bool.  status: () int32 ``driving_score.Status``.
       infractions: (12,) int32 entries per ``driving_score.INFRACTION_KEYS``.
       outside_lanes_pct: () float % of traversed route driven off-lane.
+      outside_lanes_m: () float route distance passed while off-lane, m.
       collisions_two_wheeler, invalid_action: () int32.
       episode_s: () float simulated seconds until the episode ended.
     """
@@ -222,6 +223,7 @@ class EpisodeResult:
     status: jnp.ndarray
     infractions: jnp.ndarray
     outside_lanes_pct: jnp.ndarray
+    outside_lanes_m: jnp.ndarray
     collisions_two_wheeler: jnp.ndarray
     invalid_action: jnp.ndarray
     episode_s: jnp.ndarray
@@ -255,6 +257,7 @@ def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResu
         status=score.status,
         infractions=score.infractions,
         outside_lanes_pct=jnp.where(cfg.outside_lanes, outcome.outside_lanes_pct, 0.0),
+        outside_lanes_m=score.outside_lanes_m,
         collisions_two_wheeler=carry.collisions_two_wheeler,
         invalid_action=carry.invalid_action,
         episode_s=carry.t_end,
