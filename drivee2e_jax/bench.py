@@ -137,13 +137,11 @@ class _progress_bar:
 
 
 def summarize(rows_by_policy: dict[str, list[dict]], run_info: dict) -> dict:
-    """Aggregates per policy and per behaviour group / intersection / weather."""
-    from drivee2e_jax.metrics.aggregate import drivee2e_summary
-
+    """Aggregates per policy, and per behaviour group / intersection / weather."""
     out = {"run": run_info, "policies": {}}
     for name, rows in rows_by_policy.items():
         out["policies"][name] = {
-            "overall": drivee2e_summary(rows, ep.COUNT_COLUMNS),
+            "overall": summary_of(rows),
             "by_behavior": _group(rows, "behavior"),
             "by_intersection": _group(rows, "intersection_id"),
             "by_weather": _group(rows, "weather"),
@@ -151,13 +149,73 @@ def summarize(rows_by_policy: dict[str, list[dict]], run_info: dict) -> dict:
     return out
 
 
-def _group(rows, key):
-    from drivee2e_jax.metrics.aggregate import drivee2e_summary
+def summary_of(rows: list[dict], brief: bool = False) -> dict:
+    """SR / DS / RC / IS over ``rows`` plus LB 2.0 per-km infraction rates.
 
-    groups = {}
+    SR and DS follow DriveE2E's merge (sum over the scenarios run / their
+    number; SR in %); per-km rates follow LB 2.0's global statistics.
+    """
+    from drivee2e_jax.metrics.aggregate import RouteResult, drivee2e_merge, lb_global
+    from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS
+
+    if not rows:
+        return {"num_scenarios": 0}
+    recs = [
+        RouteResult(
+            route_id=r["scenario_id"],
+            route_length_m=r["route_length_m"],
+            score_route=r["route_completion"],
+            score_penalty=r["infraction_score"],
+            score_composed=r["driving_score"],
+            status=r["status"],
+            infractions={k: r[k] for k in INFRACTION_KEYS if r.get(k)},
+            outside_lanes_m=r.get("outside_route_lanes_m", 0.0),
+            category=r["behavior"],
+        )
+        for r in rows
+    ]
+    merged = drivee2e_merge(recs, route_nums=len(recs))
+    out = {
+        "num_scenarios": len(rows),
+        "success_rate": round(merged["success rate"], 4),
+        "driving_score": round(merged["driving score"], 4),
+        "route_completion": round(float(np.mean([r["route_completion"] for r in rows])), 4),
+    }
+    if brief:
+        return out
+    g = lb_global(recs, planned_routes=len(recs))
+    per_km = g["infractions"]
+    collisions = sum(per_km[k] for k in ("collisions_pedestrian", "collisions_vehicle", "collisions_layout"))
+    out.update(
+        {
+            "infraction_score": round(float(np.mean([r["infraction_score"] for r in rows])), 4),
+            "driving_score_std": g["scores_std_dev"]["score_composed"],
+            "km_driven": round(g["km_driven"], 4),
+            "collisions_per_km": round(collisions, 3),
+            "red_light_per_km": per_km["red_light"],
+            "infractions_per_km": per_km,
+            "outside_route_lanes_pct": round(float(np.mean([r.get("outside_route_lanes_pct", 0) for r in rows])), 3),
+            "statuses": _counts(r["status"] for r in rows),
+            "eval_time_s": round(float(np.mean([r["eval_time_s"] for r in rows])), 4),
+            "episode_s": round(float(np.mean([r["episode_s"] for r in rows])), 3),
+            "invalid_action_steps": int(sum(r.get("invalid_action", 0) for r in rows)),
+        }
+    )
+    return out
+
+
+def _counts(values) -> dict:
+    out: dict = {}
+    for v in values:
+        out[v] = out.get(v, 0) + 1
+    return dict(sorted(out.items()))
+
+
+def _group(rows, key):
+    groups: dict = {}
     for r in rows:
         groups.setdefault(r[key], []).append(r)
-    return {g: drivee2e_summary(rs, ep.COUNT_COLUMNS, brief=True) for g, rs in sorted(groups.items())}
+    return {g: summary_of(rs, brief=True) for g, rs in sorted(groups.items())}
 
 
 BEHAVIOR_ORDER = ("COV", "IPC", "UT", "YLW", "STR", "LFT", "RT", "STP")
@@ -195,6 +253,3 @@ def format_tables(summary: dict) -> str:
     lines.append(f"\n(n = {n} scenarios per policy; group sizes in summary.json)")
     return "\n".join(lines)
 
-
-def _np_mean(x):
-    return float(np.mean(x)) if len(x) else 0.0

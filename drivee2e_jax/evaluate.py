@@ -132,6 +132,7 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
             "success": bool(res.success[i]),
             "status": ep.status_name(int(res.status[i])),
             "outside_route_lanes_pct": round(float(res.outside_lanes_pct[i]), 3),
+            "outside_route_lanes_m": round(float(res.outside_lanes_m[i]), 3),
             "episode_s": round(float(res.episode_s[i]), 3),
             "eval_time_s": round(eval_s_per_scenario, 4),
             **counts,

@@ -78,6 +78,9 @@ class SimConfig:
     max_episode_s: float | None = None
 
     def __post_init__(self):
+        # The waypoint controller steers for the car being simulated.
+        if self.controller.vehicle != self.dynamics:
+            object.__setattr__(self, "controller", dataclasses.replace(self.controller, vehicle=self.dynamics))
         if not self.dt > 0:
             raise ValueError(f"SimConfig.dt must be > 0 s, got {self.dt}")
         if self.max_episode_s is not None and not self.max_episode_s > 0:
@@ -270,7 +273,7 @@ class Simulator:
             ego=ego,
             step=jnp.zeros((), jnp.int32),
             episode=ep.init(scenario.route, self.config.score),
-            controller=ctl.init_controller_state(),
+            controller=ctl.init_controller_state(self.config.controller),
             ctx=ctx,
             key=key,
         )
@@ -297,6 +300,8 @@ class Simulator:
         active = ~state.episode.done
         controls, cstate, invalid = self.to_controls(state, action)
         ego = dynamics.step(state.ego, controls, cfg.dt, cfg.dynamics)
+        # Time from the step count: an accumulated float32 t drifts.
+        ego = ego.replace(t=(state.step + 1).astype(jnp.float32) * cfg.dt)
         agents = self._agents(scenario, ego.t)
         signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
         facts = self._facts(scenario, state, ego, agents, signals)

@@ -159,7 +159,8 @@ class Polylines:
 
     Attributes:
       xy:          (P, N, 2) float32 points, m.
-      point_valid: (P, N) bool; valid points are a prefix of each row.
+      point_valid: (P, N) bool (packing writes valid points as a prefix; the
+                   geometry functions do not rely on it).
       valid:       (P,) bool, the polyline exists.
     """
 
@@ -325,7 +326,8 @@ class EgoState:
       xy:       (2,) float32 position, m.
       yaw:      () float32 heading, rad.
       speed:    () float32 longitudinal speed, m/s (>= 0; no reversing).
-      accel:    () float32 longitudinal acceleration applied last step, m/s^2.
+      accel:    () float32 mean longitudinal acceleration actually reached over
+                the last step, (v1 - v0) / dt, m/s^2.
       steer:    () float32 front-wheel steering angle, rad.
       yaw_rate: () float32 rad/s over the last step.
       t:        () float32 simulation time, s.
@@ -360,7 +362,8 @@ class Waypoints:
     """A trajectory action: future ego positions in the ego frame.
 
     Attributes:
-      xy: (K, 2) float32 points, m, x forward, y left, ``Waypoints.dt`` apart.
+      xy: (K, 2) float32 points, m, x forward, y left, spaced
+          ``ControllerParams.waypoint_dt`` (default 0.5 s) apart in time.
     """
 
     xy: Array
