@@ -5,3 +5,28 @@ observations -> policy -> action -> dynamics -> infractions -> metrics -> result
 """
 
 __version__ = "0.1.0"
+
+from drivee2e_jax.scenario import load_suite  # noqa: E402
+
+# The JAX-side public names load on first use, so `drivee2e suite ...` and
+# host-side tooling do not pay for compiling-related imports.
+_LAZY = {
+    "Simulator": ("drivee2e_jax.sim", "Simulator"),
+    "SimConfig": ("drivee2e_jax.sim", "SimConfig"),
+    "evaluate": ("drivee2e_jax.evaluate", "evaluate"),
+    "load_policy": ("drivee2e_jax.policy", "load_policy"),
+    "metrics": ("drivee2e_jax.metrics", None),
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        mod, attr = _LAZY[name]
+        m = importlib.import_module(mod)
+        return m if attr is None else getattr(m, attr)
+    raise AttributeError(f"module 'drivee2e_jax' has no attribute {name!r}")
+
+
+__all__ = ["load_suite", *_LAZY]

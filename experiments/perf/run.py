@@ -1,0 +1,160 @@
+"""Closed-loop throughput benchmark (never a unit test).
+
+    python experiments/perf/run.py            # readable table
+    python experiments/perf/run.py --json     # one JSON object per line and configuration
+
+Configurations: ``state_only`` = dynamics + replay + infractions + criteria +
+vector observations with the ``log_replay`` policy, at batch sizes B (default
+1, 64, 800 scenarios of the suite). For each it reports scenario-steps/s,
+agent-steps/s (valid replayed agents, the ego included, summed over the
+simulated steps), compile time cold and from JAX's persistent compilation
+cache (each measured in a fresh subprocess), peak resident memory and the
+machine's core count.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _setup(suite: str, batch: int, chunk: int):
+    import jax
+    import jax.numpy as jnp
+
+    from drivee2e_jax.policy import load_policy
+    from drivee2e_jax.rollout import Rollout
+    from drivee2e_jax.scenario import load_suite
+    from drivee2e_jax.sim import SimConfig, Simulator
+
+    packed = load_suite(suite).pack(None)
+    n = len(packed.meta)
+    rows = [i % n for i in range(batch)]
+    scn = jax.tree_util.tree_map(jnp.asarray, packed.select(rows).scenario)
+    pol = load_policy(ROOT / "policies" / "log_replay.py")
+    ro = Rollout(Simulator(SimConfig()), pol, None, chunk=chunk)
+    return ro, scn
+
+
+def compile_probe(suite: str, batch: int, chunk: int) -> dict:
+    """Compile init + advance once (in this fresh process); report seconds."""
+    import jax
+
+    ro, scn = _setup(suite, batch, chunk)
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    t0 = time.perf_counter()
+    carry = ro.init(scn, keys)
+    jax.block_until_ready(carry)
+    t1 = time.perf_counter()
+    out = ro.advance(scn, carry)
+    jax.block_until_ready(out)
+    t2 = time.perf_counter()
+    return {"compile_init_s": t1 - t0, "compile_s": t2 - t1}
+
+
+def measure(suite: str, batch: int, chunk: int, steps: int | None) -> dict:
+    import jax
+    import numpy as np
+
+    ro, scn = _setup(suite, batch, chunk)
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    carry = ro.init(scn, keys)
+    carry, _ = ro.advance(scn, carry)  # warm-up: compile
+    jax.block_until_ready(carry)
+    carry = ro.init(scn, keys)
+    total = steps or int(scn.tracks.valid.shape[-1]) - 1
+    n_chunks = max(1, total // chunk)
+    t0 = time.perf_counter()
+    for _ in range(n_chunks):
+        carry, log = ro.advance(scn, carry)
+    jax.block_until_ready(carry)
+    wall = time.perf_counter() - t0
+    sim_steps = n_chunks * chunk
+    # Valid agents at each simulated log step (dt_sim == dt_log here).
+    valid = np.asarray(scn.tracks.valid)[:, :, 1 : sim_steps + 1]
+    agent_steps = int(valid.sum())
+    return {
+        "batch": batch,
+        "agents": int(scn.tracks.valid.shape[1]),
+        "steps": sim_steps,
+        "wall_s": wall,
+        "scenario_steps_per_s": batch * sim_steps / wall,
+        "agent_steps_per_s": agent_steps / wall,
+        "mean_valid_agents": float(valid.sum() / (batch * sim_steps)),
+    }
+
+
+def _probe_subprocess(suite, batch, chunk, cache_dir) -> dict:
+    env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(cache_dir), DRIVEE2E_PERSISTENT_CACHE="1")
+    cmd = [sys.executable, __file__, "--_probe", "--suite", suite, "--batches", str(batch), "--chunk", str(chunk)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(proc.stderr[-2000:])
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _enable_persistent_cache():
+    import jax
+
+    d = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if d:
+        jax.config.update("jax_compilation_cache_dir", d)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--suite", default="twin15")
+    ap.add_argument("--batches", default="1,64,800", help="comma-separated batch sizes (default 1,64,800)")
+    ap.add_argument("--chunk", type=int, default=50, help="steps per compiled advance (default 50)")
+    ap.add_argument("--steps", type=int, default=None, help="simulated steps (default: the log length)")
+    ap.add_argument("--no-compile", action="store_true", help="skip the cold/cached compile probes")
+    ap.add_argument("--json", action="store_true", help="one JSON object per line")
+    ap.add_argument("--_probe", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    batches = [int(b) for b in args.batches.split(",")]
+
+    if args._probe:
+        _enable_persistent_cache()
+        print(json.dumps(compile_probe(args.suite, batches[0], args.chunk)))
+        return 0
+
+    from drivee2e_jax.scenario import load_suite
+
+    load_suite(args.suite).pack(None)  # build the suite cache outside the timings
+    for b in batches:
+        row = {"config": "state_only", "suite": args.suite}
+        if not args.no_compile:
+            with tempfile.TemporaryDirectory() as cache:
+                cold = _probe_subprocess(args.suite, b, args.chunk, cache)
+                warm = _probe_subprocess(args.suite, b, args.chunk, cache)
+            row.update(compile_s=round(cold["compile_s"] + cold["compile_init_s"], 3),
+                       compile_cached_s=round(warm["compile_s"] + warm["compile_init_s"], 3))
+        row.update({k: (round(v, 3) if isinstance(v, float) else v) for k, v in measure(args.suite, b, args.chunk, args.steps).items()})
+        row["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+        row["cores"] = os.cpu_count()
+        if args.json:
+            print(json.dumps(row), flush=True)
+        else:
+            print(
+                f"{row['config']:<11} B={b:<4} A={row['agents']:<4} steps={row['steps']:<4} "
+                f"{row['scenario_steps_per_s']:>10.0f} scn-steps/s {row['agent_steps_per_s']:>12.0f} agent-steps/s "
+                f"compile {row.get('compile_s', float('nan')):.1f} s (cached {row.get('compile_cached_s', float('nan')):.1f} s) "
+                f"rss {row['peak_rss_mb']:.0f} MB cores {row['cores']}",
+                flush=True,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
