@@ -118,8 +118,11 @@ def _box_axes(yaw: Array) -> Array:
 def _box_radius(axes_n: Array, yaw: Array, lw: Array) -> Array:
     """Half-extent of a box (heading ``yaw``, ``lw`` = length, width) projected
     on unit axes ``axes_n (k, 2)`` -> (k,)."""
-    u = _box_axes(yaw)
-    return 0.5 * (jnp.abs(axes_n @ u[0]) * lw[0] + jnp.abs(axes_n @ u[1]) * lw[1])
+    cos, sin = jnp.cos(yaw), jnp.sin(yaw)
+    # Multiply-adds rather than small matmuls (slow when batched on XLA:CPU).
+    along = axes_n[..., 0] * cos + axes_n[..., 1] * sin
+    across = -axes_n[..., 0] * sin + axes_n[..., 1] * cos
+    return 0.5 * (jnp.abs(along) * lw[0] + jnp.abs(across) * lw[1])
 
 
 def box_penetration(
@@ -138,7 +141,8 @@ def box_penetration(
       lw_a, lw_b: (2,) length, width, m (a ``Tracks.size[:2]`` row works).
     """
     axes = jnp.concatenate([_box_axes(yaw_a), _box_axes(yaw_b)])  # (4, 2)
-    centre_gap = jnp.abs(axes @ (xy_b - xy_a))
+    d = xy_b - xy_a
+    centre_gap = jnp.abs(axes[..., 0] * d[0] + axes[..., 1] * d[1])
     overlap = _box_radius(axes, yaw_a, lw_a) + _box_radius(axes, yaw_b, lw_b) - centre_gap
     return jnp.min(overlap)
 
@@ -231,6 +235,59 @@ def convex_polygon_box_overlap(
     share interior (SAT depth > ``eps`` m). Arguments as
     ``convex_polygon_box_penetration``."""
     return convex_polygon_box_penetration(poly, poly_valid, xy, yaw, lw) > eps
+
+
+@struct.dataclass
+class PolygonSAT:
+    """A static convex polygon's separating-axis data, computed once.
+
+    The polygon's projections onto its own edge normals never change, so a
+    simulator precomputes them at reset and each step only projects the box
+    (cost O(V) instead of O(V^2) per polygon).
+
+    Attributes:
+      normals: (V, 2) unit edge normals.  normal_ok: (V,) bool usable axes.
+      lo, hi:  (V,) polygon extent along each normal, m.
+      poly:    (V, 2) vertices.  valid: (V,) bool.  any: () bool.
+    """
+
+    normals: Array
+    normal_ok: Array
+    lo: Array
+    hi: Array
+    poly: Array
+    valid: Array
+    any: Array
+
+
+def polygon_sat(poly: Array, poly_valid: Array) -> PolygonSAT:
+    """Precompute ``PolygonSAT`` for a padded convex polygon (V, 2)."""
+    a, b, ok = _closed_edges(poly, poly_valid)
+    normals, nonzero = _unit(jnp.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=-1))
+    proj = poly @ normals.T  # (V, V)
+    hi = jnp.max(jnp.where(poly_valid[:, None], proj, -jnp.inf), axis=0)
+    lo = jnp.min(jnp.where(poly_valid[:, None], proj, jnp.inf), axis=0)
+    return PolygonSAT(normals=normals, normal_ok=ok & nonzero, lo=lo, hi=hi, poly=poly, valid=poly_valid,
+                      any=jnp.any(poly_valid))
+
+
+def polygon_sat_box_penetration(sat: PolygonSAT, xy: Array, yaw: Array, lw: Array) -> Array:
+    """Same value as ``convex_polygon_box_penetration`` from precomputed data."""
+    # Explicit multiply-adds: tiny batched matmuls are slow on XLA:CPU.
+    n = sat.normals
+    c = n[:, 0] * xy[0] + n[:, 1] * xy[1]
+    r = _box_radius(n, yaw, lw)
+    over_poly = jnp.minimum(sat.hi - (c - r), (c + r) - sat.lo)
+    cos, sin = jnp.cos(yaw), jnp.sin(yaw)
+    px, py = sat.poly[:, 0], sat.poly[:, 1]
+    proj = jnp.stack([px * cos + py * sin, -px * sin + py * cos], axis=-1)  # (V, 2) on the box axes
+    hi = jnp.max(jnp.where(sat.valid[:, None], proj, -jnp.inf), axis=0)
+    lo = jnp.min(jnp.where(sat.valid[:, None], proj, jnp.inf), axis=0)
+    cb = jnp.stack([xy[0] * cos + xy[1] * sin, -xy[0] * sin + xy[1] * cos])
+    rb = 0.5 * lw  # a box's radius on its own axes
+    over_box = jnp.minimum(hi - (cb - rb), (cb + rb) - lo)
+    depth = jnp.minimum(jnp.min(jnp.where(sat.normal_ok, over_poly, jnp.inf)), jnp.min(over_box))
+    return jnp.where(sat.any, depth, -jnp.inf)
 
 
 # --------------------------------------------------------------------------
@@ -330,6 +387,38 @@ def project_to_polyline(p: Array, xy: Array, valid: Array) -> Projection:
         heading=jnp.arctan2(tangent[1], tangent[0]),
         valid=any_valid,
     )
+
+
+def nearest_segment(p: Array, xy: Array, valid: Array) -> tuple[Array, Array]:
+    """Fast (distance, heading) of ``p`` to a DENSELY sampled padded polyline.
+
+    Finds the nearest valid vertex, then projects onto its two adjacent
+    segments only: O(N) cheap squared distances instead of N full segment
+    projections. Equal to ``project_to_polyline``'s distance whenever the
+    true foot lies on a segment adjacent to the nearest vertex, which holds
+    for polylines sampled much finer than their radius of curvature and the
+    point's distance (lanes at <= 2 m spacing, queried within a few metres).
+    Returns (inf, 0) for a polyline without a valid point.
+    """
+    n = xy.shape[0]
+    d2 = jnp.sum((xy - p) ** 2, axis=-1)
+    j = jnp.argmin(jnp.where(valid, d2, jnp.inf))
+    lo = jnp.clip(j - 1, 0, n - 2)
+    best_d, best_h = jnp.inf, jnp.zeros(())
+    for k in (lo, lo + 1):  # segments (k, k + 1) around the vertex
+        k = jnp.minimum(k, n - 2)
+        a, b = xy[k], xy[k + 1]
+        ok = valid[k] & valid[k + 1]
+        dab = b - a
+        t = jnp.clip(_dot(p - a, dab) / jnp.maximum(_dot(dab, dab), _TINY), 0.0, 1.0)
+        dist = jnp.where(ok, safe_norm(p - (a + t * dab)), jnp.inf)
+        better = dist < best_d
+        best_h = jnp.where(better, jnp.arctan2(dab[1], dab[0]), best_h)
+        best_d = jnp.where(better, dist, best_d)
+    # A lone valid point (no valid segment): its own distance.
+    lone = ~jnp.isfinite(best_d) & valid[j]
+    best_d = jnp.where(lone, jnp.sqrt(d2[j]), best_d)
+    return best_d, best_h
 
 
 def distance_to_polylines(

@@ -88,13 +88,18 @@ def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, t
     return overlap.any(), track_id[i], cls.astype(jnp.int32), cat.astype(jnp.int32)
 
 
-def layout_contact(ego: EgoState, ego_lw, map_data: MapData):
-    """Whether the ego box overlaps any static obstacle footprint (convex)."""
+def obstacle_sat(map_data: MapData) -> geometry.PolygonSAT:
+    """(O, ...) separating-axis data of every static obstacle (once per episode)."""
     obs = map_data.obstacles
-    hit = jax.vmap(geometry.convex_polygon_box_overlap, in_axes=(0, 0, None, None, None))(
-        obs.xy, obs.point_valid, ego.xy, ego.yaw, ego_lw
+    return jax.vmap(geometry.polygon_sat)(obs.xy, obs.point_valid & obs.valid[:, None])
+
+
+def layout_contact(ego: EgoState, ego_lw, sat: geometry.PolygonSAT):
+    """Whether the ego box overlaps any static obstacle footprint (convex)."""
+    depth = jax.vmap(geometry.polygon_sat_box_penetration, in_axes=(0, None, None, None))(
+        sat, ego.xy, ego.yaw, ego_lw
     )
-    return (hit & obs.valid).any()
+    return (depth > geometry.EPS).any()
 
 
 def stop_line_directions(map_data: MapData):
@@ -138,7 +143,8 @@ def red_light_crossing(prev: EgoState, ego: EgoState, ego_length, map_data: MapD
     crossed = jax.vmap(geometry.segments_intersect, in_axes=(None, None, 0, 0))(
         a, b, map_data.stop_lines[:, 0], map_data.stop_lines[:, 1]
     )
-    aligned = stop_dir @ fwd(ego) > 0.0
+    f = fwd(ego)
+    aligned = stop_dir[:, 0] * f[0] + stop_dir[:, 1] * f[1] > 0.0
     red = crossed & aligned & map_data.stop_line_valid & (state == SignalState.RED)
     return red.any(), jnp.where(red.any(), jnp.argmax(red), -1).astype(jnp.int32), red
 
@@ -154,11 +160,12 @@ def lane_status(ego: EgoState, lane_xy, lane_point_valid, lane_valid, lane_width
 
     Returns (off_lane: bool, offset to nearest aligned lane centre: float32).
     """
-    proj = jax.vmap(geometry.project_to_polyline, in_axes=(None, 0, 0))(ego.xy, lane_xy, lane_point_valid)
-    aligned = jnp.abs(geometry.wrap_angle(proj.heading - ego.yaw)) < LANE_ALIGN_MAX
+    # Lanes are sampled at <= 2 m, so the nearest-vertex projection is exact here.
+    dist, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lane_xy, lane_point_valid)
+    aligned = jnp.abs(geometry.wrap_angle(heading - ego.yaw)) < LANE_ALIGN_MAX
     ok = lane_valid & aligned
-    excess = jnp.where(ok, proj.distance - (0.5 * lane_width + LANE_MARGIN), jnp.inf)
-    offset = jnp.where(ok, proj.distance, jnp.inf).min()
+    excess = jnp.where(ok, dist - (0.5 * lane_width + LANE_MARGIN), jnp.inf)
+    offset = jnp.where(ok, dist, jnp.inf).min()
     return ~(excess.min() <= 0.0), offset
 
 

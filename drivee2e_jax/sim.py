@@ -97,12 +97,14 @@ class SimContext:
       stop_arc:  (S,) float32 route arc where the route crosses each stop line
                  (inf if it does not).
       ego_lw:    (2,) float32 ego length and width, m.
+      obstacles: (O, ...) ``geometry.PolygonSAT`` of the static obstacles.
     """
 
     lanes: jnp.ndarray
     stop_dir: jnp.ndarray
     stop_arc: jnp.ndarray
     ego_lw: jnp.ndarray
+    obstacles: geometry.PolygonSAT
 
 
 @struct.dataclass
@@ -267,6 +269,7 @@ class Simulator:
             stop_dir=infractions.stop_line_directions(scenario.map),
             stop_arc=_route_stop_arcs(scenario),
             ego_lw=tr.size[i, :2],
+            obstacles=infractions.obstacle_sat(scenario.map),
         )
         key, k_obs = jax.random.split(key)
         state = SimState(
@@ -347,7 +350,7 @@ class Simulator:
             agent_hit_id=hit_id,
             agent_hit_class=hit_cls,
             agent_hit_category=hit_cat,
-            layout_hit=infractions.layout_contact(ego, lw, scenario.map),
+            layout_hit=infractions.layout_contact(ego, lw, state.ctx.obstacles),
             red_light=red,
             red_light_index=red_i,
             red_light_lines=red_lines,

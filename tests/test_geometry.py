@@ -361,3 +361,39 @@ def test_distance_to_polylines():
     # Batched over points.
     ds, _ = jax.vmap(f, (0, None, None, None))(jnp.array([[5.0, 1.5], [5.0, 4.0]]), xy, point_valid, valid)
     chex.assert_shape(ds, (2,))
+
+
+def test_precomputed_polygon_sat_matches_direct_sat():
+    """The per-episode precomputation gives the same depth as the direct SAT."""
+    from drivee2e_jax.geometry import convex_polygon_box_penetration, polygon_sat, polygon_sat_box_penetration
+
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        ang = np.sort(rng.uniform(0, 2 * np.pi, 6))
+        poly = np.stack([np.cos(ang), np.sin(ang)], 1) * rng.uniform(1, 4) + rng.uniform(-3, 3, 2)
+        poly = np.concatenate([poly, np.zeros((4, 2))])  # padded
+        valid = np.arange(10) < 6
+        xy, yaw, lw = rng.uniform(-4, 4, 2), rng.uniform(-np.pi, np.pi), np.array([4.5, 1.9])
+        want = convex_polygon_box_penetration(jnp.asarray(poly), jnp.asarray(valid), jnp.asarray(xy), yaw, jnp.asarray(lw))
+        got = polygon_sat_box_penetration(polygon_sat(jnp.asarray(poly), jnp.asarray(valid)), jnp.asarray(xy), yaw, jnp.asarray(lw))
+        np.testing.assert_allclose(float(got), float(want), rtol=1e-5, atol=1e-5)
+
+
+def test_nearest_segment_matches_full_projection_on_dense_polylines():
+    """On a lane sampled at 2 m, the fast projection equals the exact one."""
+    from drivee2e_jax.geometry import nearest_segment, project_to_polyline
+
+    rng = np.random.default_rng(1)
+    for radius in (8.0, 15.0, 40.0):  # U-turn-tight to gentle curve
+        s = np.arange(0, min(60.0, np.pi * radius), 2.0)  # at most a U-turn
+        ang = s / radius
+        xy = np.stack([radius * np.sin(ang), radius * (1 - np.cos(ang))], 1)
+        xy = np.concatenate([xy, np.zeros((6, 2))])
+        valid = np.arange(len(xy)) < len(s)
+        for _ in range(40):
+            k = rng.integers(0, len(s))
+            p = xy[k] + rng.uniform(-3, 3, 2)
+            want = project_to_polyline(jnp.asarray(p), jnp.asarray(xy), jnp.asarray(valid))
+            d, h = nearest_segment(jnp.asarray(p), jnp.asarray(xy), jnp.asarray(valid))
+            np.testing.assert_allclose(float(d), float(want.distance), atol=1e-4)
+            assert abs(math.remainder(float(h) - float(want.heading), 2 * math.pi)) < 1e-4 or float(d) < 1e-3
