@@ -1,0 +1,93 @@
+"""`drivee2e bench` end to end on a small suite folder: files, tables, resume, errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+import sim_scenarios as ss
+from drivee2e_jax.cli import main
+from drivee2e_jax.scenario.records import SuiteRecord
+from drivee2e_jax.scenario.schema import write_suite
+
+REQUIRED = ("policy", "scenario_id", "split", "intersection_id", "behavior", "route_completion", "infraction_score",
+            "driving_score", "success", "status", "eval_time_s", "collisions_vehicle", "red_light")
+
+
+@pytest.fixture(scope="module")
+def suite_dir(tmp_path_factory):
+    maps = {m.map_id: m for m in (ss.road_map(), ss.road_map(obstacle=True))}
+    scns = [ss.clean(), ss.blocked_by_car(), ss.red_light()]
+    return write_suite(SuiteRecord("road3", "1", maps, scns), tmp_path_factory.mktemp("suites") / "road3")
+
+
+def _bench(suite_dir, out, *extra):
+    return main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress",
+                 "--policy", "log_replay", "--policy", "stop", *extra])
+
+
+def test_bench_writes_tables_and_resumes(suite_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "run"
+    assert _bench(suite_dir, out) == 0
+    printed = capsys.readouterr().out
+    assert "SR %" in printed and "log_replay" in printed and "SR % by behaviour" in printed
+    rows = list(csv.DictReader((out / "scenarios.csv").open()))
+    assert len(rows) == 6 and set(REQUIRED) <= set(rows[0])
+    by = {(r["policy"], r["scenario_id"]): r for r in rows}
+    assert by[("log_replay", "clean")]["status"] == "Perfect"
+    assert float(by[("log_replay", "car_ahead")]["driving_score"]) == pytest.approx(60.0, abs=1e-3)
+    detail = json.loads((out / "scenarios.json").read_text())
+    ev = next(r for r in detail if r["policy"] == "log_replay" and r["scenario_id"] == "red")["events"]
+    assert any(e["type"] == "red_light" and {"t", "x", "y"} <= set(e) for e in ev)
+    summary = json.loads((out / "summary.json").read_text())
+    lr = summary["policies"]["log_replay"]["overall"]
+    assert lr["num_scenarios"] == 3 and lr["success_rate"] == pytest.approx(100 / 3, abs=1e-3)
+    assert summary["policies"]["stop"]["overall"]["success_rate"] == 0.0
+
+    # Resume: both policies are skipped, files stay identical.
+    before = (out / "scenarios.csv").read_text()
+    stamp = (out / "policies" / "log_replay.json").stat().st_mtime_ns
+    assert _bench(suite_dir, out) == 0
+    assert "already done" in capsys.readouterr().out
+    assert (out / "policies" / "log_replay.json").stat().st_mtime_ns == stamp
+    assert (out / "scenarios.csv").read_text() == before
+
+
+def test_bench_refuses_a_different_run_without_force(suite_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "run"
+    assert _bench(suite_dir, out, "--limit", "1") == 0
+    capsys.readouterr()
+    assert _bench(suite_dir, out, "--preset", "lb20", "--limit", "1") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different run" in err[0] and "preset" in err[0] and "Traceback" not in err[0]
+    assert _bench(suite_dir, out, "--preset", "lb20", "--limit", "1", "--force") == 0
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--policy", "no/such/policy.py"], "policy file not found"),
+        (["--policy", "nonsense"], "not a file and not a reference policy"),
+        (["--split", "train"], "split"),
+        (["--control-every", "0"], "control_every"),
+    ],
+)
+def test_bench_bad_input_is_one_line(suite_dir, tmp_path, capsys, monkeypatch, args, needle):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    rc = main(["bench", "--suite", str(suite_dir), "--out", str(tmp_path / "o"), "--no-progress", *args])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and needle in err[0] and "Traceback" not in err[0]
+
+
+def test_policy_file_without_policy(tmp_path, capsys, suite_dir, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    bad = tmp_path / "empty_policy.py"
+    bad.write_text("x = 1\n")
+    rc = main(["bench", "--suite", str(suite_dir), "--out", str(tmp_path / "o"), "--no-progress", "--policy", str(bad)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "defines neither `policy` nor `make_policy()`" in err and str(bad) in err
