@@ -91,7 +91,10 @@ class Expert(StatelessPolicy):
         arc, lat = _path_coords(pos, route, rvalid)
         half_w = 0.5 * ag[None, :, 7]
         half_l = 0.5 * ag[None, :, 6]
-        in_path = (lat < EGO_HALF_WIDTH + half_w + 0.6) & (arc > 0.0) & obs.agents_valid[None]
+        # Agents now behind the ego's centre are followers: braking for their
+        # predicted (overtaking) positions would only stop the ego in their way.
+        now_ahead = obs.agents_valid & (ag[:, 0] > 0.0)
+        in_path = (lat < EGO_HALF_WIDTH + half_w + 0.6) & (arc > 0.0) & now_ahead[None]
         # Beside or behind the ego front: not an obstacle to brake for.
         ahead = ag[None, :, 0] + t[:, None] * ag[None, :, 4] > EGO_HALF_LEN * 0.5
         gap = jnp.where(in_path & ahead, arc - EGO_HALF_LEN - half_l, jnp.inf)

@@ -112,10 +112,28 @@ def _run(seed: int, metas: list[Meta], todo: list[int]) -> _Outcome:
     return out
 
 
+def _jax_backend_live() -> bool:
+    """Whether JAX has started its backend (and with it its thread pools)."""
+    import sys
+
+    if "jax" not in sys.modules:
+        return False
+    try:
+        from jax._src import xla_bridge
+
+        return bool(getattr(xla_bridge, "_backends", {}))
+    except Exception:  # noqa: BLE001 - private API moved: assume live, stay safe
+        return True
+
+
 def _default_workers() -> int:
     env = os.environ.get("DRIVEE2E_TWIN15_WORKERS", "").strip()
     if env:
         return max(1, int(env))
+    # Forking a process whose JAX runtime threads are running can deadlock
+    # the child (JAX warns about it), so fork only before JAX has started.
+    if _jax_backend_live():
+        return 1
     return 2 if (os.cpu_count() or 1) >= 2 else 1
 
 
