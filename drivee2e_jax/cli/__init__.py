@@ -1,0 +1,106 @@
+"""The ``drivee2e`` command line: one command, subcommands in their own modules.
+
+Each ``drivee2e_jax/cli/<module>.py`` listed in :data:`SUBCOMMANDS` exposes
+``add_parser(subparsers)`` (see ``cli.common``). Modules are imported
+defensively: a module that does not exist yet is skipped, and one that fails
+to import becomes a subcommand that reports the failure, so the others keep
+working. When the command line names a subcommand only its module is
+imported, which keeps ``drivee2e suite ...`` free of unrelated imports.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from drivee2e_jax.cli import common
+
+#: Subcommand modules, in the order ``drivee2e --help`` lists them. A module's
+#: command name is its name with "_" -> "-" (``export_mcap`` -> ``export-mcap``).
+SUBCOMMANDS = ("bench", "suite", "train", "trend", "view", "export_mcap")
+
+DESCRIPTION = """\
+drivee2e: a JAX ego-closed-loop replay benchmark for end-to-end driving policies.
+The ego is driven by the policy under test; every other agent replays its log."""
+
+EPILOG = """\
+examples:
+  drivee2e suite info twin15            # what is in the built-in suite
+  drivee2e suite generate --out suites/twin15
+  drivee2e bench --split val            # evaluate the reference policies
+
+Add --debug anywhere to see the traceback of an error.
+"""
+
+
+def _command_module(argv: list[str]) -> str | None:
+    """The module of the subcommand named on the command line, if any."""
+    for token in argv:
+        if token == "--":
+            return None
+        if not token.startswith("-"):
+            mod = token.replace("-", "_")
+            return mod if mod in SUBCOMMANDS else None
+    return None
+
+
+def _unavailable(subparsers, mod: str, exc: BaseException) -> None:
+    name = mod.replace("_", "-")
+    p = subparsers.choices.get(name)  # add_parser may have failed half-way
+    if p is None:
+        p = subparsers.add_parser(name, help=f"(unavailable: {type(exc).__name__})")
+        p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+
+    def fail(args):
+        if args.debug:
+            raise exc
+        raise common.DriveE2EError(f"subcommand {name!r} is unavailable: the module drivee2e_jax.cli.{mod} "
+                                   f"failed to import ({type(exc).__name__}: {exc}); rerun with --debug")
+
+    p.set_defaults(func=fail)
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The full parser, or one with only the ``only`` subcommand module."""
+    parser = argparse.ArgumentParser(
+        prog=common.PROG, description=DESCRIPTION, epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors (allowed anywhere)")
+    try:
+        from importlib.metadata import version
+
+        parser.add_argument("--version", action="version", version=f"%(prog)s {version('drivee2e-jax')}")
+    except Exception:  # noqa: BLE001 - not installed as a distribution
+        pass
+    subparsers = parser.add_subparsers(dest="command", metavar="<command>", required=True)
+    for mod in SUBCOMMANDS if only is None else (only,):
+        try:
+            module = importlib.import_module(f"{__name__}.{mod}")
+        except ModuleNotFoundError as e:
+            if e.name == f"{__name__}.{mod}":
+                continue  # not written yet
+            _unavailable(subparsers, mod, e)
+            continue
+        except Exception as e:  # noqa: BLE001 - keep the other subcommands alive
+            _unavailable(subparsers, mod, e)
+            continue
+        try:
+            module.add_parser(subparsers)
+        except Exception as e:  # noqa: BLE001 - a broken add_parser must not hide the rest
+            _unavailable(subparsers, mod, e)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``drivee2e`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    argv, debug = common.pop_debug(argv)
+    try:
+        parser = build_parser(_command_module(argv))
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # --help, --version, usage errors
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else common.EXIT_USAGE)
+    args.debug = debug
+    return common.run(args.func, args, debug=debug)

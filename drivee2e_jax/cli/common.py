@@ -1,0 +1,110 @@
+"""Shared CLI plumbing: parser helpers, error handling, progress bars.
+
+Every subcommand module ``drivee2e_jax/cli/<name>.py`` exposes
+``add_parser(subparsers)`` which adds its parser (use :func:`add_command` for
+the house style: description + example epilog, raw formatting) and sets
+``func=<callable(args) -> int>`` with ``set_defaults``. Keep heavy imports
+(jax, the simulator) inside the ``func`` so that ``drivee2e --help`` is quick
+and one broken module cannot break the others.
+
+Errors: :class:`DriveE2EError` and the other *expected* errors (missing or
+unreadable files) print one line ``drivee2e: error: <message>`` on stderr and
+exit 2; anything else is a bug and keeps its traceback. ``--debug`` (accepted
+anywhere on the command line) re-raises expected errors with their traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import textwrap
+from typing import Any, Callable, Iterable
+
+from drivee2e_jax.errors import DriveE2EError
+
+PROG = "drivee2e"
+
+#: Exit codes: 0 ok, 1 the command ran and found problems, 2 bad input / usage.
+EXIT_OK, EXIT_PROBLEMS, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+#: Errors a user can fix: printed as one line, no traceback.
+EXPECTED_ERRORS: tuple[type[BaseException], ...] = (
+    DriveE2EError,
+    FileNotFoundError,
+    FileExistsError,
+    NotADirectoryError,
+    IsADirectoryError,
+    PermissionError,
+)
+
+
+def add_command(subparsers, name: str, *, help: str, description: str, epilog: str,
+                **kwargs: Any) -> argparse.ArgumentParser:
+    """A subcommand parser with a description and an example epilog.
+
+    The description is wrapped to 79 columns unless it has its own newlines
+    (raw formatting keeps the epilog's examples as written)."""
+    if "\n" not in description:
+        description = textwrap.fill(description, 79)
+    return subparsers.add_parser(
+        name, help=help, description=description, epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs,
+    )
+
+
+def pop_debug(argv: list[str]) -> tuple[list[str], bool]:
+    """Remove every ``--debug`` before a ``--`` terminator; report if any was there."""
+    if "--" in argv:
+        i = argv.index("--")
+        head, tail = argv[:i], argv[i:]
+    else:
+        head, tail = argv, []
+    kept = [a for a in head if a != "--debug"]
+    return kept + tail, len(kept) != len(head)
+
+
+def error_message(exc: BaseException) -> str:
+    """The one-line text for an expected error."""
+    if isinstance(exc, DriveE2EError):
+        return str(exc)
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror or exc}"
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def print_error(message: str) -> None:
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+
+
+def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace, *, debug: bool) -> int:
+    """Call a subcommand, turning expected errors into one line + exit code 2."""
+    try:
+        code = func(args)
+        sys.stdout.flush()
+        return EXIT_OK if code is None else int(code)
+    except EXPECTED_ERRORS as e:
+        if debug:
+            raise
+        print_error(error_message(e))
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. `drivee2e suite info twin15 | head`
+        try:
+            sys.stdout = open("/dev/null", "w")  # noqa: SIM115 - silence the flush at exit
+        except OSError:
+            pass
+        return EXIT_OK
+
+
+def progress(iterable: Iterable | None = None, **kwargs: Any):
+    """A tqdm progress bar on stderr, hidden when stderr is not a terminal."""
+    from tqdm import tqdm
+
+    kwargs.setdefault("disable", None)
+    kwargs.setdefault("file", sys.stderr)
+    kwargs.setdefault("dynamic_ncols", True)
+    return tqdm(iterable, **kwargs)

@@ -1,0 +1,265 @@
+"""Suite folders: JSON round trip, determinism, atomic writes, validation."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.scenario.records import SuiteRecord
+from drivee2e_jax.scenario.schema import (
+    Problem,
+    read_suite,
+    validate_records,
+    validate_suite,
+    write_suite,
+)
+
+
+def _files(folder):
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.json"))}
+
+
+def _tracks_by_id(rec):
+    return {t.track_id: t for t in rec.tracks}
+
+
+# --------------------------------------------------------------------------
+# write / read
+# --------------------------------------------------------------------------
+
+
+def test_round_trip_reproduces_records(tiny_suite, tiny_suite_dir):
+    back = read_suite(tiny_suite_dir)
+    assert isinstance(back, SuiteRecord)
+    assert (back.name, back.version, back.meta) == (tiny_suite.name, tiny_suite.version, tiny_suite.meta)
+    assert set(back.maps) == set(tiny_suite.maps)
+    assert [s.scenario_id for s in back.scenarios] == [s.scenario_id for s in tiny_suite.scenarios]
+    for a, b in zip(tiny_suite.scenarios, back.scenarios):
+        for key in ("split", "intersection_id", "map_id", "behavior", "weather", "time_of_day",
+                    "ego_track_id", "dt", "num_steps"):
+            assert getattr(a, key) == getattr(b, key), key
+        np.testing.assert_allclose(a.route.waypoints, b.route.waypoints, atol=5e-4)
+        assert set(a.signals) == set(b.signals)
+        for g in a.signals:
+            np.testing.assert_array_equal(a.signals[g], b.signals[g])
+        ta, tb = _tracks_by_id(a), _tracks_by_id(b)
+        assert list(ta) == list(tb)  # order kept on disk
+        for tid in ta:
+            x, y = ta[tid], tb[tid]
+            assert x.category == y.category
+            np.testing.assert_allclose(x.t, y.t, atol=5e-5)
+            np.testing.assert_allclose(x.xy, y.xy, atol=5e-4)
+            np.testing.assert_allclose(x.yaw, y.yaw, atol=5e-5)
+            np.testing.assert_allclose(x.size, y.size, atol=5e-4)
+            assert (x.vel is None) == (y.vel is None)
+            if x.vel is not None:
+                np.testing.assert_allclose(x.vel, y.vel, atol=5e-4)
+            for flag in ("visible", "quality"):
+                fx, fy = getattr(x, flag), getattr(y, flag)
+                assert (fx is None) == (fy is None)
+                if fx is not None:
+                    np.testing.assert_array_equal(fx, fy)
+    m0, m1 = tiny_suite.maps["m_cross"], back.maps["m_cross"]
+    assert [ln.successors for ln in m0.lanes] == [ln.successors for ln in m1.lanes]
+    assert [(s.id, s.lane_id, s.signal_group) for s in m0.stop_lines] == \
+        [(s.id, s.lane_id, s.signal_group) for s in m1.stop_lines]
+    assert [o.kind for o in m0.obstacles] == [o.kind for o in m1.obstacles]
+    assert m0.signal_plan == m1.signal_plan
+    assert m0.meta == m1.meta
+
+
+def test_writes_are_byte_deterministic_and_compact(tiny_suite, tmp_path):
+    a = write_suite(tiny_suite, tmp_path / "a")
+    b = write_suite(read_suite(a), tmp_path / "b")  # a read-back suite writes the same bytes
+    assert _files(a) == _files(b)
+    text = (a / "scenarios" / "s_left.json").read_text()
+    assert "-0.0," not in text and "NaN" not in text
+    obj = json.loads(text)
+    xs = obj["tracks"][0]["x"]
+    assert all(round(v, 3) == v for v in xs)  # 1 mm
+    assert all(round(v, 4) == v for v in obj["tracks"][0]["yaw"])  # 1e-4 rad
+    assert "vx" not in obj["tracks"][0] and "vx" in obj["tracks"][1]  # velocity only when the record has it
+    assert set(obj) >= {"scenario_id", "route", "tracks", "signals", "schema_version"}
+    head = json.loads((a / "suite.json").read_text())
+    assert head["schema_version"] == 1
+    assert head["scenarios"][0] == {"id": "s_straight", "split": "train", "intersection_id": "i0", "behavior": "STR"}
+
+
+def test_write_refuses_non_empty_folder_and_replaces_only_suites(tiny_suite, tmp_path):
+    out = write_suite(tiny_suite, tmp_path / "s")
+    with pytest.raises(DriveE2EError, match="not empty"):
+        write_suite(tiny_suite, out)
+    tiny_suite.name = "renamed"
+    write_suite(tiny_suite, out, overwrite=True)
+    assert read_suite(out).name == "renamed"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]  # no temp folders left behind
+
+    other = tmp_path / "not_a_suite"
+    other.mkdir()
+    (other / "precious.txt").write_text("keep me")
+    with pytest.raises(DriveE2EError, match="not a suite folder"):
+        write_suite(tiny_suite, other, overwrite=True)
+    assert (other / "precious.txt").read_text() == "keep me"
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    write_suite(tiny_suite, empty)
+    assert (empty / "suite.json").is_file()
+
+
+def test_write_refuses_invalid_records(tiny_suite, tmp_path):
+    tiny_suite.scenarios[0].weather = "snow"
+    with pytest.raises(DriveE2EError, match=r"scenarios/s_straight.json: weather: expected one of clear"):
+        write_suite(tiny_suite, tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
+
+
+def test_validate_records_names_virtual_files(tiny_suite):
+    tiny_suite.scenarios[1].tracks[0].t = tiny_suite.scenarios[1].tracks[0].t + 0.03
+    tiny_suite.maps["m_tee"].lanes[0].successors = [42]
+    problems = validate_records(tiny_suite)
+    texts = [str(p) for p in problems]
+    assert any(t.startswith("scenarios/s_left.json: tracks[0].t[0]: expected a multiple of dt") for t in texts)
+    assert any(t.startswith("maps/m_tee.json: lanes[0].successors[0]: expected a lane id") for t in texts)
+
+
+def test_valid_suite_has_no_problems(tiny_suite_dir):
+    assert validate_suite(tiny_suite_dir) == []
+
+
+# --------------------------------------------------------------------------
+# Validation: every kind of problem, each naming file and field
+# --------------------------------------------------------------------------
+
+
+def _edit(folder, rel, fn):
+    path = folder / rel
+    obj = json.loads(path.read_text())
+    fn(obj)
+    path.write_text(json.dumps(obj))  # NaN is written as the (non-standard) NaN token
+
+
+def _set(path, value):
+    def fn(obj):
+        *head, last = path
+        for k in head:
+            obj = obj[k]
+        obj[last] = value
+
+    return fn
+
+
+def _delete(key):
+    return lambda obj: obj.pop(key)
+
+
+S = "scenarios/s_straight.json"
+M = "maps/m_cross.json"
+
+CASES = {
+    "missing field": (S, _delete("weather"), "weather", "field is missing"),
+    "unknown field": (S, _set(["wether"], "clear"), "wether", "one of the known fields (scenario_id, split,"),
+    "wrong type": (S, _set(["num_steps"], "50"), "num_steps", "an integer"),
+    "unknown category": (S, _set(["tracks", 0, "category"], "lorry"), "tracks[0].category",
+                         "one of car, truck, bus, van, motorcycle, tricycle, pedestrian, cyclist"),
+    "unknown behavior": (S, _set(["behavior"], "ZIG"), "behavior", "one of COV, IPC, UT, YLW, STR, LFT, RT, STP"),
+    "unknown split": (S, _set(["split"], "dev"), "split", "one of train, val, test"),
+    "unknown weather": (S, _set(["weather"], "snow"), "weather", "one of clear, cloudy, rain, fog"),
+    "unknown time of day": (S, _set(["time_of_day"], "noon"), "time_of_day", "one of day, dusk, night"),
+    "unknown lane type": (M, _set(["lanes", 0, "type"], "highway"), "lanes[0].type",
+                          "one of driving, turn_pocket, connector, bike, parking"),
+    "unknown marking": (M, _set(["boundaries", 1, "marking"], "zigzag"), "boundaries[1].marking",
+                        "one of none, dashed, solid, double_solid, road_edge"),
+    "unknown signal state": (S, lambda o: o["signals"]["0"].__setitem__(3, 7), 'signals["0"][3]', "3=green"),
+    "length mismatch": (S, lambda o: o["tracks"][0]["yaw"].pop(), "tracks[0].yaw", "(as many as t)"),
+    "non-finite": (S, _set(["tracks", 0, "x", 2], math.nan), "tracks[0].x[2]", "finite"),
+    "off the dt grid": (S, _set(["tracks", 0, "t", 1], 0.1234), "tracks[0].t[1]", "multiple of dt=0.1"),
+    "non-increasing": (S, _set(["tracks", 0, "t", 2], 0.1), "tracks[0].t[2]", "increasing timestamps"),
+    "beyond num_steps": (S, _set(["tracks", 2, "t", 49], 5.0), "tracks[2].t[49]", "num_steps=50"),
+    "ego not a track": (S, _set(["ego_track_id"], 999), "ego_track_id", "one of the track ids (3, 7, 12)"),
+    "map not in suite": (S, _set(["map_id"], "m_nowhere"), "map_id", "one of the suite's maps (m_cross, m_tee)"),
+    "successor missing": (M, _set(["lanes", 0, "successors"], [2, 99]), "lanes[0].successors[1]",
+                          "a lane id of this map (1, 2, 3, 4, 5)"),
+    "stop line lane missing": (M, _set(["stop_lines", 0, "lane_id"], 77), "stop_lines[0].lane_id",
+                               "-1 or a lane id of this map"),
+    "signal length": (S, _set(["signals", "0"], [3, 3, 3]), 'signals["0"]', "50 states"),
+    "negative size": (S, _set(["tracks", 0, "size", 1], -1.0), "tracks[0].size[1]", ">= 0"),
+    "negative lane width": (M, _set(["lanes", 2, "width"], -3.0), "lanes[2].width", ">= 0"),
+    "short route": (S, _set(["route", "waypoints"], [[0.0, 0.0]]), "route.waypoints", "at least 2 points"),
+    "duplicate track ids": (S, _set(["tracks", 1, "track_id"], 3), "tracks[1].track_id", "a unique track id"),
+    "duplicate scenario ids": ("suite.json", _set(["scenarios", 1, "id"], "s_straight"), "scenarios[1].id",
+                               "a unique scenario id"),
+    "schema version": ("suite.json", _set(["schema_version"], 99), "schema_version", "1 (the schema version"),
+    "vx without vy": ("scenarios/s_left.json", lambda o: o["tracks"][1].pop("vy"), "tracks[1].vy",
+                      "vx and vy together"),
+    "bad flag": (S, _set(["tracks", 1, "visible", 0], 2), "tracks[1].visible[0]", "true/false (or 0/1)"),
+    "polygon too small": (M, _set(["crosswalks", 0], [[0, 0], [1, 1]]), "crosswalks[0]", "at least 3 points"),
+    "point not a pair": (M, _set(["lanes", 1, "centerline", 1], [1.0]), "lanes[1].centerline[1]",
+                         "a list of 2 numbers"),
+    "map id not file name": (M, _set(["map_id"], "m_other"), "map_id", "'m_cross' (the file name)"),
+    "disagrees with suite.json": (S, _set(["behavior"], "LFT"), "behavior", "'STR' as listed in suite.json"),
+    "non-positive dt": (S, _set(["dt"], 0.0), "dt", "a number > 0"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_each_problem_names_file_field_and_expectation(tiny_suite_dir, case):
+    rel, mutate, field, expected = CASES[case]
+    _edit(tiny_suite_dir, rel, mutate)
+    problems = validate_suite(tiny_suite_dir)
+    hits = [p for p in problems if p.file == rel and p.field == field and expected in p.expected]
+    assert hits, f"no {rel}: {field}: ...{expected}... in {[str(p) for p in problems]}"
+    with pytest.raises(DriveE2EError) as err:
+        read_suite(tiny_suite_dir)
+    msg = str(err.value)
+    assert "\n" not in msg
+    first = problems[0]
+    assert f"{first.file}: {first.field}" in msg and first.expected in msg
+    if len(problems) > 1:
+        assert f"(and {len(problems) - 1} more; run `drivee2e suite validate" in msg
+
+
+def test_unparsable_json_reports_line_and_column(tiny_suite_dir):
+    path = tiny_suite_dir / S
+    path.write_text('{\n "scenario_id": "s_straight",\n "split": \n}')
+    (p,) = validate_suite(tiny_suite_dir)
+    assert p.file == S and p.field == "line 4 column 1" and p.expected == "valid JSON"
+    with pytest.raises(DriveE2EError, match=r"s_straight.json: line 4 column 1: expected valid JSON"):
+        read_suite(tiny_suite_dir)
+
+
+def test_listed_scenario_file_missing_and_unlisted_file(tiny_suite_dir):
+    (tiny_suite_dir / "scenarios" / "s_val.json").rename(tiny_suite_dir / "scenarios" / "s_extra.json")
+    problems = {p.file: p for p in validate_suite(tiny_suite_dir)}
+    assert "listed in suite.json as scenarios[2]" in problems["scenarios/s_val.json"].expected
+    assert problems["scenarios/s_val.json"].got == "missing"
+    assert "listed in suite.json" in problems["scenarios/s_extra.json"].expected
+
+
+def test_all_problems_are_collected(tiny_suite_dir):
+    _edit(tiny_suite_dir, S, _set(["weather"], "snow"))
+    _edit(tiny_suite_dir, S, _set(["tracks", 0, "x", 0], math.inf))
+    _edit(tiny_suite_dir, "scenarios/s_val.json", _set(["time_of_day"], "noon"))
+    _edit(tiny_suite_dir, M, _set(["lanes", 0, "successors"], [55]))
+    problems = validate_suite(tiny_suite_dir)
+    assert len(problems) == 4
+    assert {p.file for p in problems} == {S, "scenarios/s_val.json", M}
+    with pytest.raises(DriveE2EError, match=r"\(and 3 more; run `drivee2e suite validate "):
+        read_suite(tiny_suite_dir)
+
+
+def test_not_a_suite_folder(tmp_path):
+    with pytest.raises(DriveE2EError, match="does not exist"):
+        read_suite(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    (p,) = validate_suite(tmp_path / "empty")
+    assert p.file == "suite.json" and "suite.json file" in p.expected
+
+
+def test_problem_str():
+    assert str(Problem("a.json", "x[1]", "a number", "null")) == "a.json: x[1]: expected a number, got null"
+    assert str(Problem("a.json", "", "a file")) == "a.json: expected a file"
