@@ -223,12 +223,9 @@ class Simulator:
 
     def _privileged(self, scenario: Scenario, ego: EgoState) -> Privileged:
         cfg = self.config
-        nxt = replay.agents_at(scenario.tracks, ego.t + cfg.dt, scenario.dt_log)
-        i = scenario.ego_index
-        controls = dynamics.inverse(ego, nxt.xy[i], nxt.yaw[i], cfg.dt, cfg.dynamics)
-        return Privileged(
-            ego=ego, log_next_xy=nxt.xy[i], log_next_yaw=nxt.yaw[i], log_valid=nxt.valid[i], log_controls=controls
-        )
+        nxt = replay.ego_log_at(scenario.tracks, scenario.ego_index, ego.t + cfg.dt, scenario.dt_log)
+        controls = dynamics.inverse(ego, nxt.xy, nxt.yaw, cfg.dt, cfg.dynamics)
+        return Privileged(ego=ego, log_next_xy=nxt.xy, log_next_yaw=nxt.yaw, log_valid=nxt.valid, log_controls=controls)
 
     def _observe(self, scenario: Scenario, state: SimState, agents, key) -> Observation:
         lane_xy, lane_pv, _, _ = _lane_rows(scenario, state.ctx.lanes)

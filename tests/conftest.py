@@ -7,8 +7,21 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
+
+
+def pytest_configure(config):
+    """JAX's persistent compilation cache: reruns (and CI on the same machine)
+    reuse compiled rollouts instead of recompiling every jit from scratch."""
+    import jax
+
+    base = os.environ.get("DRIVEE2E_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "drivee2e")
+    if base.lower() != "off":
+        jax.config.update("jax_compilation_cache_dir", os.path.join(base, "jax"))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 from drivee2e_jax.scenario.records import (
     BoundaryRecord,

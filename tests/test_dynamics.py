@@ -8,7 +8,7 @@ import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from drivee2e_jax import dynamics as dyn
@@ -178,6 +178,10 @@ def test_inverse_round_trip(x, y, yaw, speed, steer0, throttle, brake, steer, br
     state = ego(x, y, yaw, speed, steer0 * P.max_steer)
     c = ctl(0.0 if brake_only else throttle, brake if brake_only else 0.0, steer)
     target = _step(state, c, DT, P)
+    # Chords of a few mm blend towards holding the steer by design (log
+    # jitter must not jerk the wheel; see test_inverse_tiny_chord_holds_steer),
+    # so the exact round trip is claimed for real motion: >= 3 cm per step.
+    assume(float(jnp.linalg.norm(target.xy - state.xy)) >= 0.03)
     recovered = _inverse(state, target.xy, target.yaw, DT, P)
     again = _step(state, recovered, DT, P)
     np.testing.assert_allclose(again.xy, target.xy, atol=1e-3)

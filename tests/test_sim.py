@@ -168,5 +168,5 @@ def test_step_is_differentiable_in_controls(batch):
             s, _, _ = sim.step(scn, s, Controls(throttle, jnp.zeros(()), jnp.asarray(0.1)))
         return s.ego.xy[0] + s.ego.xy[1]
 
-    g = jax.grad(final_x)(jnp.asarray(0.3))
+    g = jax.jit(jax.grad(final_x))(jnp.asarray(0.3))
     assert np.isfinite(float(g)) and float(g) > 0

@@ -79,7 +79,7 @@ __all__ = [
 
 #: Version of the packed-array semantics; bump it when they change so that
 #: on-disk packed caches are rebuilt.
-PACK_FORMAT = 1
+PACK_FORMAT = 2  # 2: obstacle footprints have their own vertex count
 
 #: Route densification step, m.
 ROUTE_SPACING_M = 1.0
@@ -108,9 +108,12 @@ class PackSizes:
 
     Attributes:
       agents (A), steps (T), lanes (L), points (N: lane centreline and
-      boundary points), boundaries (E), crosswalks (C), vertices (V: crosswalk,
-      drivable and obstacle polygon vertices), stop_lines (S), drivable (G),
-      obstacles (O), route (R: 1 m route points), successors (K).
+      boundary points), boundaries (E), crosswalks (C), vertices (V: crosswalk
+      and drivable polygon vertices), stop_lines (S), drivable (G), obstacles
+      (O), obstacle_vertices (V_O: static obstacle footprint vertices, sized
+      apart because the simulator tests every obstacle against the ego each
+      step and footprints are small), route (R: 1 m route points),
+      successors (K).
     """
 
     agents: int
@@ -125,11 +128,12 @@ class PackSizes:
     obstacles: int
     route: int
     successors: int
+    obstacle_vertices: int = 4
 
     #: ``fit`` rounds each maximum up to a multiple of this.
     MULTIPLE: typing.ClassVar[dict[str, int]] = dict(
         agents=8, steps=8, lanes=8, points=4, boundaries=8, crosswalks=4, vertices=4,
-        stop_lines=4, drivable=4, obstacles=4, route=16, successors=4,
+        stop_lines=4, drivable=4, obstacles=4, route=16, successors=4, obstacle_vertices=4,
     )
 
     def __post_init__(self):
@@ -161,6 +165,7 @@ class PackSizes:
             vertices=m.crosswalks.xy.shape[-2], stop_lines=m.stop_lines.shape[-3],
             drivable=m.drivable.xy.shape[-3], obstacles=m.obstacles.xy.shape[-3],
             route=scenario.route.xy.shape[-2], successors=m.lane_successors.shape[-1],
+            obstacle_vertices=m.obstacles.xy.shape[-2],
         )
 
     def replace(self, **changes: int) -> "PackSizes":
@@ -212,7 +217,7 @@ LEAVES: dict[str, tuple[tuple, Any, Any]] = {
     "map.stop_line_lane": (("stop_lines",), _I, -1),
     "map.stop_line_valid": (("stop_lines",), _B, False),
     **_poly("map.drivable", "drivable", "vertices"),
-    **_poly("map.obstacles", "obstacles", "vertices"),
+    **_poly("map.obstacles", "obstacles", "obstacle_vertices"),
     "map.obstacle_height": (("obstacles",), _F, 0),
     "signals.state": (("stop_lines", "steps"), _I, "signal"),
     "route.xy": (("route", 2), _F, "edge"),
@@ -521,8 +526,8 @@ def _map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
     verts = max(
         most(m.crosswalks, len, lambda i: f"{where} crosswalks[{i}]"),
         most(m.drivable_areas, len, lambda i: f"{where} drivable_areas[{i}]"),
-        most(m.obstacles, lambda o: len(o.polygon), lambda i: f"{where} obstacles[{i}].polygon"),
     )
+    obstacle_verts = most(m.obstacles, lambda o: len(o.polygon), lambda i: f"{where} obstacles[{i}].polygon")
     return {
         "lanes": (len(m.lanes), f"{where} lanes"),
         "points": pts,
@@ -532,6 +537,7 @@ def _map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         "stop_lines": (len(m.stop_lines), f"{where} stop_lines"),
         "drivable": (len(m.drivable_areas), f"{where} drivable_areas"),
         "obstacles": (len(m.obstacles), f"{where} obstacles"),
+        "obstacle_vertices": obstacle_verts,
         "successors": most(m.lanes, lambda ln: len(ln.successors), lambda i: f"{where} lanes[{i}].successors"),
     }
 
@@ -835,7 +841,8 @@ def _used(f: dict[str, np.ndarray], meta: SuiteMeta) -> dict[str, np.ndarray]:
         "points": np.maximum(last(f["map.lanes.point_valid"], 2), last(f["map.boundaries.point_valid"], 2)),
         "boundaries": last(f["map.boundaries.valid"], 1),
         "crosswalks": last(f["map.crosswalks.valid"], 1),
-        "vertices": np.maximum.reduce([last(f[f"map.{p}.point_valid"], 2) for p in ("crosswalks", "drivable", "obstacles")]),
+        "vertices": np.maximum.reduce([last(f[f"map.{p}.point_valid"], 2) for p in ("crosswalks", "drivable")]),
+        "obstacle_vertices": last(f["map.obstacles.point_valid"], 2),
         "stop_lines": last(f["map.stop_line_valid"], 1),
         "drivable": last(f["map.drivable.valid"], 1),
         "obstacles": last(f["map.obstacles.valid"], 1),
