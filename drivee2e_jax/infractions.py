@@ -70,19 +70,34 @@ class StepFacts:
     front_distance: jnp.ndarray
 
 
-def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, track_id):
+#: Agents tested for contact each tick: the nearest by centre distance. An
+#: overlapping agent is within half the sum of the two box diagonals (< 9 m
+#: for a bus against a car), so it is among these unless 16 others are closer.
+CONTACT_CANDIDATES = 16
+
+
+def nearest_rows(ego: EgoState, agents: AgentStates, k: int = CONTACT_CANDIDATES):
+    """(k,) rows of the valid agents nearest the ego (nearest first), and their validity."""
+    d2 = jnp.sum((agents.xy - ego.xy) ** 2, axis=-1)
+    k = min(k, d2.shape[0])
+    neg, idx = jax.lax.top_k(-jnp.where(agents.valid, d2, jnp.inf), k)
+    return idx, jnp.isfinite(neg)
+
+
+def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, track_id, near, near_ok):
     """Which replayed agent (if any) the ego box overlaps.
 
-    Returns (hit, track id, class, category) of the lowest-row overlapping agent.
-    CARLA reports one collision event per contact; one per tick is enough
-    here because ``CollisionDedup`` drops repeats of the same actor within 5 s
-    and any contact within 5 m of the last counted one.
+    Tests the candidate rows ``near`` (nearest first, from ``nearest_rows``)
+    and returns (hit, track id, class, category) of the nearest overlapping
+    one. CARLA reports one collision event per contact; one per tick is
+    enough here because ``CollisionDedup`` drops repeats of the same actor
+    within 5 s and any contact within 5 m of the last counted one.
     """
     overlap = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))(
-        ego.xy, ego.yaw, ego_lw, agents.xy, agents.yaw, size[:, :2]
+        ego.xy, ego.yaw, ego_lw, agents.xy[near], agents.yaw[near], size[near, :2]
     )
-    overlap = overlap & agents.valid
-    i = jnp.argmax(overlap)
+    overlap = overlap & near_ok
+    i = near[jnp.argmax(overlap)]
     cat = category[i]
     cls = jnp.where(cat == Category.PEDESTRIAN, CLASS_WALKER, CLASS_VEHICLE)
     return overlap.any(), track_id[i], cls.astype(jnp.int32), cat.astype(jnp.int32)

@@ -335,7 +335,10 @@ class Simulator:
     def _facts(self, scenario: Scenario, state: SimState, ego: EgoState, agents, signals):
         tr = scenario.tracks
         lw = state.ctx.ego_lw
-        hit, hit_id, hit_cls, hit_cat = infractions.agent_contacts(ego, lw, agents, tr.size, tr.category, tr.track_id)
+        near, near_ok = infractions.nearest_rows(ego, agents)
+        hit, hit_id, hit_cls, hit_cat = infractions.agent_contacts(
+            ego, lw, agents, tr.size, tr.category, tr.track_id, near, near_ok
+        )
         red, red_i, red_lines = infractions.red_light_crossing(
             state.ego, ego, lw[0], scenario.map, state.ctx.stop_dir, signals
         )
