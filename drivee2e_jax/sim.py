@@ -22,7 +22,7 @@ from drivee2e_jax import controller as ctl
 from drivee2e_jax import dynamics, geometry, infractions, replay
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.metrics.driving_score import ScoreConfig
-from drivee2e_jax.observe.vector import ObsConfig, observe
+from drivee2e_jax.observe.vector import ObsConfig, observe, route_speed_limits
 from drivee2e_jax.types import Controls, EgoState, Observation, Privileged, Scenario, Waypoints
 
 #: Lanes near the route considered for the off-lane test and the lane observation.
@@ -97,6 +97,7 @@ class SimContext:
       stop_arc:  (S,) float32 route arc where the route crosses each stop line
                  (inf if it does not).
       ego_lw:    (2,) float32 ego length and width, m.
+      speed_limit: (R,) float32 speed limit along the route, m/s.
       obstacles: (O, ...) ``geometry.PolygonSAT`` of the static obstacles.
     """
 
@@ -104,6 +105,7 @@ class SimContext:
     stop_dir: jnp.ndarray
     stop_arc: jnp.ndarray
     ego_lw: jnp.ndarray
+    speed_limit: jnp.ndarray
     obstacles: geometry.PolygonSAT
 
 
@@ -205,6 +207,12 @@ def _lane_rows(scenario: Scenario, idx):
     )
 
 
+def _route_speed_limits(scenario: Scenario, idx):
+    lane_xy, lane_pv, lane_ok, _ = _lane_rows(scenario, idx)
+    limit = scenario.map.lane_speed_limit[jnp.maximum(idx, 0)]
+    return route_speed_limits(scenario.route, lane_xy, lane_pv, lane_ok, limit)
+
+
 class Simulator:
     """``reset(key, scenario)`` and ``step(scenario, state, action)``.
 
@@ -242,6 +250,7 @@ class Simulator:
             lane_valid=lane_pv,
             stop_arc=state.ctx.stop_arc,
             stop_state=signals,
+            speed_limit=state.ctx.speed_limit[ep.route_index(state.episode)],
             privileged=self._privileged(scenario, state.ego),
             key=key,
             cfg=self.config.obs,
@@ -261,11 +270,13 @@ class Simulator:
         tr = scenario.tracks
         i = scenario.ego_index
         ego = dynamics.ego_from_log(tr.xy[i, 0], tr.yaw[i, 0], tr.vel[i, 0], jnp.zeros((), jnp.float32))
+        lanes = _candidate_lanes(scenario, NUM_CANDIDATE_LANES)
         ctx = SimContext(
-            lanes=_candidate_lanes(scenario, NUM_CANDIDATE_LANES),
+            lanes=lanes,
             stop_dir=infractions.stop_line_directions(scenario.map),
             stop_arc=_route_stop_arcs(scenario),
             ego_lw=tr.size[i, :2],
+            speed_limit=_route_speed_limits(scenario, lanes),
             obstacles=infractions.obstacle_sat(scenario.map),
         )
         key, k_obs = jax.random.split(key)

@@ -418,6 +418,8 @@ class Observation:
       lanes_valid:    (M, Q) bool.
       signal_state:   () int32 ``SignalState`` of the next stop line on the route.
       signal_distance:() float32 route distance to that stop line, m (1e3 if none).
+      speed_limit:    () float32 speed limit of the lane the route runs on at the
+                      ego's route position, m/s (CARLA agents' ``get_speed_limit``).
       privileged:     Privileged.
       bev:            (H, W, C) float32 or None (sensor issue).
       lidar:          (beams, channels) float32 or None (sensor issue).
@@ -436,6 +438,7 @@ class Observation:
     lanes_valid: Array
     signal_state: Array
     signal_distance: Array
+    speed_limit: Array
     privileged: Privileged
     bev: Array | None = None
     lidar: Array | None = None

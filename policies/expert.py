@@ -1,7 +1,8 @@
 """`expert`: a rule-based route follower (privileged only in seeing signals).
 
 * Lateral: pure pursuit on the route points ahead (lookahead grows with speed).
-* Longitudinal: IDM towards a desired speed limited by route curvature, on the
+* Longitudinal: IDM towards the lane's speed limit, lowered for route
+  curvature, on the
   nearest obstacle in its path corridor: agents now inside the corridor ahead,
   agents predicted (constant velocity, up to 2.5 s) to enter it (crossing
   pedestrians, cyclists, cross traffic), and a red (or yellow it can still stop
@@ -20,7 +21,6 @@ from drivee2e_jax.dynamics import BicycleParams
 from drivee2e_jax.policy import StatelessPolicy
 from drivee2e_jax.types import Controls, SignalState
 
-V_MAX = 12.5  # desired cruise speed, m/s (45 km/h, urban intersections)
 A_LAT = 2.0  # comfortable lateral acceleration for curve speed, m/s^2
 IDM_A = 2.0  # max acceleration, m/s^2
 IDM_B = 3.0  # comfortable deceleration, m/s^2
@@ -55,15 +55,15 @@ def _path_coords(points, route, route_valid):
     return arc, lat
 
 
-def _curve_speed(route, route_valid):
-    """Speed limit from the sharpest heading change over the route ahead."""
+def _curve_speed(route, route_valid, v_max):
+    """``v_max`` lowered for the sharpest heading change over the route ahead."""
     d = route[1:] - route[:-1]
     h = jnp.arctan2(d[:, 1], d[:, 0])
     dh = jnp.abs(jnp.angle(jnp.exp(1j * (h[1:] - h[:-1]))))
     ds = jnp.maximum(jnp.linalg.norm(d[1:], axis=-1), 0.5)
     ok = route_valid[2:]
     kappa = jnp.max(jnp.where(ok, dh / ds, 0.0))
-    return jnp.minimum(V_MAX, jnp.sqrt(A_LAT / jnp.maximum(kappa, 1e-3)))
+    return jnp.minimum(v_max, jnp.sqrt(A_LAT / jnp.maximum(kappa, 1e-3)))
 
 
 def _idm(v, v0, gap, dv):
@@ -82,7 +82,7 @@ class Expert(StatelessPolicy):
     def act(self, params, obs, policy_state, key):
         v = obs.ego[0]
         route, rvalid = obs.route, obs.route_valid
-        v0 = _curve_speed(route, rvalid)
+        v0 = _curve_speed(route, rvalid, obs.speed_limit)
 
         # Agents now and predicted, in path coordinates.
         ag = obs.agents  # x, y, cos, sin, vx, vy, length, width

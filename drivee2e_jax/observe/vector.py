@@ -102,6 +102,31 @@ def lanes_near(ego: EgoState, lane_xy, lane_valid, cfg: ObsConfig):
     return jnp.where(valid[..., None], rel, 0.0), valid
 
 
+def route_speed_limits(route: Route, lane_xy, lane_point_valid, lane_valid, lane_limit):
+    """(R,) speed limit along the route: that of the nearest lane running its way.
+
+    Computed once per episode (at reset) from the candidate lanes near the
+    route. A route point with no aligned lane nearby takes the highest
+    candidate limit (it is then inside a junction area the lanes do not cover).
+
+    Args:
+      route: the reference route (R points, 1 m apart).
+      lane_xy: (M, N, 2) candidate lane centrelines; lane_point_valid (M, N);
+      lane_valid: (M,) bool; lane_limit: (M,) m/s.
+    """
+    seg = route.xy[1:] - route.xy[:-1]
+    heading = jnp.arctan2(seg[:, 1], seg[:, 0])
+    heading = jnp.concatenate([heading, heading[-1:]])
+
+    def at(p, h):
+        d, lh = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(p, lane_xy, lane_point_valid)
+        ok = lane_valid & (jnp.abs(geometry.wrap_angle(lh - h)) < jnp.pi / 3)
+        j = jnp.argmin(jnp.where(ok, d, jnp.inf))
+        return jnp.where(ok[j], lane_limit[j], jnp.max(jnp.where(lane_valid, lane_limit, 0.0)))
+
+    return jax.vmap(at)(route.xy, heading)
+
+
 def next_signal(progress_arc, stop_arc, stop_state):
     """State and route distance of the next stop line on the route.
 
@@ -134,6 +159,7 @@ def observe(
     lane_valid,
     stop_arc,
     stop_state,
+    speed_limit,
     privileged: Privileged,
     key,
     cfg: ObsConfig,
@@ -160,5 +186,6 @@ def observe(
         lanes_valid=lanes_valid,
         signal_state=sig_state,
         signal_distance=sig_dist,
+        speed_limit=jnp.asarray(speed_limit, jnp.float32),
         privileged=privileged,
     )
