@@ -13,7 +13,7 @@ from drivee2e_jax.scenario import load_suite  # noqa: E402
 _LAZY = {
     "Simulator": ("drivee2e_jax.sim", "Simulator"),
     "SimConfig": ("drivee2e_jax.sim", "SimConfig"),
-    "evaluate": ("drivee2e_jax.evaluate", "evaluate"),
+    "evaluate": ("drivee2e_jax.evaluation", "evaluate"),
     "load_policy": ("drivee2e_jax.policy", "load_policy"),
     "metrics": ("drivee2e_jax.metrics", None),
 }

@@ -46,7 +46,7 @@ class BenchConfig:
 def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict:
     """Run, write ``results/<run>/`` and print the tables. Returns the summary."""
     from drivee2e_jax.errors import DriveE2EError
-    from drivee2e_jax.evaluate import evaluate
+    from drivee2e_jax.evaluation import evaluate
     from drivee2e_jax.policy import load_policy
     from drivee2e_jax.rollout import ControlTiming
     from drivee2e_jax.scenario import load_suite

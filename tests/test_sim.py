@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import sim_scenarios as ss
-from drivee2e_jax.evaluate import evaluate
+from drivee2e_jax.evaluation import evaluate
 from drivee2e_jax.policy import StatelessPolicy, load_policy
 from drivee2e_jax.rollout import ControlTiming, Rollout
 from drivee2e_jax.sim import SimConfig, Simulator, sanitize_controls, score_preset

@@ -1,4 +1,4 @@
-"""``evaluate(policy, suite, split)``: one policy, one split, one batched rollout.
+"""``evaluate(policy, suite, split)`` (exported as ``drivee2e_jax.evaluate``): one policy, one split, one batched rollout.
 
 Returns per-scenario records (the columns of ``io.results``) and the
 infraction events with time and location, plus timing. Host-side glue around
