@@ -17,7 +17,7 @@ from flax import struct
 from drivee2e_jax import geometry
 from drivee2e_jax.metrics.criteria import CollisionClass
 from drivee2e_jax.replay import AgentStates
-from drivee2e_jax.types import Category, EgoState, MapData, SignalState
+from drivee2e_jax.types import Category, EgoState, MapData, Marking, SignalState
 
 # Collision classes as CARLA's collision test names them.
 CLASS_WALKER = int(CollisionClass.PEDESTRIAN)
@@ -53,6 +53,10 @@ class StepFacts:
       bg_present:    bool, at least one such vehicle.
       front_distance: float32 centre distance to the nearest agent ahead in the
                      ego's lane corridor, m (inf if none).
+      lane_invasion: bool, a corner of the ego box crossed a painted lane
+                     marking (dashed, solid, double solid) this tick.
+      lane_invasion_marking: int32 ``Marking`` of the crossed line (the
+                     strictest if several; NONE if none).
     """
 
     agent_hit: jnp.ndarray
@@ -68,6 +72,8 @@ class StepFacts:
     bg_speed: jnp.ndarray
     bg_present: jnp.ndarray
     front_distance: jnp.ndarray
+    lane_invasion: jnp.ndarray
+    lane_invasion_marking: jnp.ndarray
 
 
 #: Agents tested for contact each tick: the nearest by centre distance. An
@@ -205,3 +211,40 @@ def front_distance(ego: EgoState, ego_lw, agents: AgentStates, size):
     in_corridor = (rel[:, 0] > 0) & (jnp.abs(rel[:, 1]) < 0.5 * ego_lw[1] + 0.5 * size[:, 1] + 0.5)
     d = jnp.where(agents.valid & in_corridor, jnp.linalg.norm(rel, axis=-1), jnp.inf)
     return d.min()
+
+
+def _cross2(u, v):
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def lane_invasion(prev: EgoState, ego: EgoState, ego_lw, bnd_xy, bnd_point_valid, bnd_valid, bnd_marking):
+    """Whether a corner of the ego box crossed a painted lane marking this tick.
+
+    CARLA's lane-invasion sensor (the input of Behavior Metrics' lane
+    invasions) fires when the vehicle's box crosses a marking. Each corner's
+    motion over the tick (last tick's corner -> this tick's) is tested for a
+    proper crossing with every segment of the candidate boundaries (M of
+    them, near the route). Only painted markings count (dashed, solid,
+    double solid); road edges are the off-road criteria's business.
+
+    Args:
+      prev, ego: the ego before and after the tick.  ego_lw: (2,) m.
+      bnd_xy: (M, N, 2) boundary polylines; bnd_point_valid (M, N);
+      bnd_valid: (M,) bool; bnd_marking: (M,) int32 ``Marking``.
+
+    Returns (crossed: bool, the crossed line's ``Marking``: int32, strictest).
+    """
+    c0 = geometry.box_corners(prev.xy, prev.yaw, ego_lw[0], ego_lw[1])  # (4, 2)
+    c1 = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
+    a, b = bnd_xy[:, :-1], bnd_xy[:, 1:]  # (M, N-1, 2)
+    seg_ok = bnd_point_valid[:, :-1] & bnd_point_valid[:, 1:]
+    painted = bnd_valid & (bnd_marking >= Marking.DASHED) & (bnd_marking <= Marking.DOUBLE_SOLID)
+    p0, p1 = c0[:, None, None], c1[:, None, None]  # (4, 1, 1, 2)
+    ab = b - a
+    o1, o2 = _cross2(ab, p0 - a), _cross2(ab, p1 - a)
+    d = p1 - p0
+    o3, o4 = _cross2(d, a - p0), _cross2(d, b - p0)
+    hit = (o1 * o2 < 0) & (o3 * o4 < 0) & seg_ok & painted[:, None]  # (4, M, N-1)
+    per_line = hit.any(axis=(0, 2))
+    marking = jnp.max(jnp.where(per_line, bnd_marking, Marking.NONE))
+    return per_line.any(), marking.astype(jnp.int32)

@@ -27,6 +27,8 @@ from drivee2e_jax.types import Controls, EgoState, Observation, Privileged, Scen
 
 #: Lanes near the route considered for the off-lane test and the lane observation.
 NUM_CANDIDATE_LANES = 16
+#: Lane boundaries near the route tested for lane invasions.
+NUM_CANDIDATE_BOUNDARIES = 16
 
 #: Scoring presets by name (``--preset``); ``paper`` is the default.
 SCORE_PRESETS = ("paper", "drivee2e", "lb20", "lb21", "b2d")
@@ -93,6 +95,7 @@ class SimContext:
 
     Attributes:
       lanes:     (M,) int32 candidate lane rows near the route (-1 padded).
+      boundaries: (M_b,) int32 candidate lane-boundary rows near the route (-1 padded).
       stop_dir:  (S, 2) float32 travel direction across each stop line.
       stop_arc:  (S,) float32 route arc where the route crosses each stop line
                  (inf if it does not).
@@ -102,6 +105,7 @@ class SimContext:
     """
 
     lanes: jnp.ndarray
+    boundaries: jnp.ndarray
     stop_dir: jnp.ndarray
     stop_arc: jnp.ndarray
     ego_lw: jnp.ndarray
@@ -163,23 +167,26 @@ class StepLog:
     route_completion: jnp.ndarray
 
 
-def _candidate_lanes(scenario: Scenario, m: int):
-    """Rows of the ``m`` lanes closest to the route (static per episode)."""
-    lanes = scenario.map.lanes
-    route = scenario.route
-    # Distance from each lane point to the nearest route point (coarse: every 4th).
+def _near_route(lines, route, m: int):
+    """Rows of the ``m`` polylines of ``lines`` closest to the route (-1 padded)."""
+    # Distance from each polyline point to the nearest route point (coarse: every 4th).
     rp = route.xy[::4]
     rv = route.valid[::4]
-    d = jnp.linalg.norm(lanes.xy[:, :, None, :] - rp[None, None], axis=-1)
-    d = jnp.where(lanes.point_valid[:, :, None] & rv[None, None], d, jnp.inf)
+    d = jnp.linalg.norm(lines.xy[:, :, None, :] - rp[None, None], axis=-1)
+    d = jnp.where(lines.point_valid[:, :, None] & rv[None, None], d, jnp.inf)
     dmin = d.min(axis=(1, 2))
-    dmin = jnp.where(lanes.valid, dmin, jnp.inf)
+    dmin = jnp.where(lines.valid, dmin, jnp.inf)
     k = min(m, dmin.shape[0])
     _, idx = jax.lax.top_k(-dmin, k)
     idx = jnp.where(jnp.isfinite(dmin[idx]), idx, -1)
     if k < m:
         idx = jnp.pad(idx, (0, m - k), constant_values=-1)
     return idx.astype(jnp.int32)
+
+
+def _candidate_lanes(scenario: Scenario, m: int):
+    """Rows of the ``m`` lanes closest to the route (static per episode)."""
+    return _near_route(scenario.map.lanes, scenario.route, m)
 
 
 def _route_stop_arcs(scenario: Scenario):
@@ -273,6 +280,7 @@ class Simulator:
         lanes = _candidate_lanes(scenario, NUM_CANDIDATE_LANES)
         ctx = SimContext(
             lanes=lanes,
+            boundaries=_near_route(scenario.map.boundaries, scenario.route, NUM_CANDIDATE_BOUNDARIES),
             stop_dir=infractions.stop_line_directions(scenario.map),
             stop_arc=_route_stop_arcs(scenario),
             ego_lw=tr.size[i, :2],
@@ -356,6 +364,13 @@ class Simulator:
         lane_xy, lane_pv, lane_ok, lane_w = _lane_rows(scenario, state.ctx.lanes)
         off, offset = infractions.lane_status(ego, lane_xy, lane_pv, lane_ok, lane_w)
         bg, bg_ok = infractions.background_speed(ego, agents, tr.category)
+        bnd = state.ctx.boundaries
+        safe = jnp.maximum(bnd, 0)
+        bl = scenario.map.boundaries
+        invaded, invaded_marking = infractions.lane_invasion(
+            state.ego, ego, lw, bl.xy[safe], bl.point_valid[safe], bl.valid[safe] & (bnd >= 0),
+            scenario.map.boundary_marking[safe],
+        )
         return infractions.StepFacts(
             agent_hit=hit,
             agent_hit_id=hit_id,
@@ -370,6 +385,8 @@ class Simulator:
             bg_speed=bg,
             bg_present=bg_ok,
             front_distance=infractions.front_distance(ego, lw, agents, tr.size),
+            lane_invasion=invaded,
+            lane_invasion_marking=invaded_marking,
         )
 
 
