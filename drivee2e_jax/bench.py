@@ -8,6 +8,7 @@ atomically and skipped when the run is resumed.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Callable
 
@@ -155,7 +156,7 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
     SR and DS follow DriveE2E's merge (sum over the scenarios run / their
     number; SR in %); per-km rates follow LB 2.0's global statistics.
     """
-    from drivee2e_jax.metrics.aggregate import RouteResult, drivee2e_merge, lb_global
+    from drivee2e_jax.metrics.aggregate import RouteResult, b2d_efficiency, drivee2e_merge, lb_global
     from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS
 
     if not rows:
@@ -170,6 +171,8 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
             status=r["status"],
             infractions={k: r[k] for k in INFRACTION_KEYS if r.get(k)},
             outside_lanes_m=r.get("outside_route_lanes_m", 0.0),
+            # The route's mean checkpoint ratio: B2D efficiency averages these.
+            min_speed_pct=(float(r["efficiency_pct"]),) if _finite(r.get("efficiency_pct")) else (),
             category=r["behavior"],
         )
         for r in rows
@@ -201,6 +204,25 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
             "invalid_action_steps": int(sum(r.get("invalid_action", 0) for r in rows)),
         }
     )
+    out.update(_fine_means(rows))
+    if any(r.min_speed_pct for r in recs):
+        out["efficiency_pct"] = round(b2d_efficiency(recs), 4)
+    return out
+
+
+def _finite(v) -> bool:
+    return v is not None and not math.isnan(float(v))
+
+
+def _fine_means(rows: list[dict]) -> dict:
+    """Means of the fine-grained columns over scenarios (NaN rows skipped)."""
+    from drivee2e_jax.metrics.finegrained import SUMMARY_COLUMNS
+
+    out = {}
+    for c in SUMMARY_COLUMNS:
+        vals = [float(r[c]) for r in rows if _finite(r.get(c))]
+        if vals:
+            out[c] = round(float(np.mean(vals)), 4)
     return out
 
 
@@ -249,7 +271,28 @@ def format_tables(summary: dict) -> str:
             f"{s['by_behavior'][g]['driving_score']:>7.1f}" if g in s["by_behavior"] else f"{'-':>7}" for g in groups
         )
         lines.append(f"{name:<18}{cells}")
+    fine = (
+        ("dev m", "position_deviation_mean_m", 8.3),
+        ("km/h", "average_speed_kmh", 7.1),
+        ("jerk", "jerk_lon_mean_mps3", 7.2),
+        ("inv/km", "lane_invasions_per_km", 8.2),
+        ("dang%", "front_time_pct_dangerous", 7.1),
+        ("smooth%", "smoothness_pct", 9.1),
+        ("eff%", "efficiency_pct", 7.1),
+    )
+    head = f"{'fine-grained':<14}" + "".join(f"{h:>{int(w)}}" for h, _, w in fine)
+    lines += ["", head, "-" * len(head)]
+    for name, s in pols.items():
+        o = s["overall"]
+        cells = "".join(
+            f"{o[k]:>{w}f}" if k in o else f"{'-':>{int(w)}}" for _, k, w in fine
+        )
+        lines.append(f"{name:<14}{cells}")
     n = summary["run"].get("num_scenarios")
     lines.append(f"\n(n = {n} scenarios per policy; group sizes in summary.json)")
+    lines.append(
+        "fine-grained: lane-centre deviation m, average speed km/h, longitudinal jerk m/s^3, lane invasions/km,"
+        " % of time < 6 m behind a vehicle, Bench2Drive smoothness % and efficiency % (docs/metrics.md)"
+    )
     return "\n".join(lines)
 

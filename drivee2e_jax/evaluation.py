@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from drivee2e_jax.metrics import episode as ep
+from drivee2e_jax.metrics import finegrained
 from drivee2e_jax.rollout import ControlTiming, Rollout
 from drivee2e_jax.sim import Simulator, SimConfig
 
@@ -117,6 +118,14 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
     route_len = np.asarray(batch.route.length)
     for i, m in enumerate(meta.rows()):
         counts = {k: int(v[i]) for k, v in ep.counts_dict(res).items()}
+        log_i = jax.tree_util.tree_map(lambda a: a[i], logs)
+        fine = finegrained.episode_columns(
+            log_i,
+            route_length_m=float(route_len[i]),
+            route_completion_pct=float(res.route_completion[i]),
+            dt_s=cfg.dt,
+            min_speed_pct=res.min_speed_pct[i][res.min_speed_valid[i]],
+        )
         row = {
             "policy": name,
             "scenario_id": m["scenario_id"],
@@ -136,7 +145,9 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
             "episode_s": round(float(res.episode_s[i]), 3),
             "eval_time_s": round(eval_s_per_scenario, 4),
             **counts,
+            # Undefined values (NaN) are null in JSON and empty in CSV.
+            **{k: (round(v, 4) if np.isfinite(v) else None) for k, v in fine.items()},
         }
         rows.append(row)
-        events[m["scenario_id"]] = ep.extract_events(jax.tree_util.tree_map(lambda a: a[i], logs))
+        events[m["scenario_id"]] = ep.extract_events(log_i)
     return rows, events

@@ -86,6 +86,8 @@ def rows_to_csv(rows: list[dict], columns: Iterable[str]) -> str:
 
 
 def _csv_value(v):
+    if v is None:
+        return ""
     if isinstance(v, float):
         return f"{v:.6g}"
     if isinstance(v, bool):
@@ -148,6 +150,9 @@ class RunDir:
                 rows.append(r)
                 rows_json.append({**r, "events": data["events"].get(r["scenario_id"], [])})
         cols = list(BASE_COLUMNS) + [c for c in count_columns if c not in BASE_COLUMNS]
+        # Then every other per-scenario column (fine-grained, open-loop ...) in first-seen order.
+        for r in rows:
+            cols += [k for k in r if k not in cols]
         atomic_write_text(self.path / "scenarios.csv", rows_to_csv(rows, cols))
         atomic_write_json(self.path / "scenarios.json", rows_json)
         atomic_write_json(self.path / "summary.json", summary)

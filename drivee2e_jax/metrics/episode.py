@@ -150,9 +150,9 @@ def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt,
     collision, tick = cr.collision_update(carry.collision, hit, ids, cls, ego.xy, ego.speed, ego.t)
     blocked, is_blocked = cr.blocked_update(carry.blocked, ego.speed, ego.t, cfg.blocked_max_time_s)
     timeout, timed_out = cr.route_timeout_update(carry.timeout, route, ego.xy, jnp.asarray(SPEED_LIMIT), ego.t)
-    min_speed, _ = cr.min_speed_update(
-        carry.min_speed, route, ego.xy, ego.speed, facts.bg_present & cfg.min_speed, facts.bg_speed
-    )
+    # Checkpoints are always sampled (Bench2Drive's efficiency reads them even
+    # where they carry no penalty); ``cfg.min_speed`` gates only the penalty.
+    min_speed, _ = cr.min_speed_update(carry.min_speed, route, ego.xy, ego.speed, facts.bg_present, facts.bg_speed)
     red, red_events = cr.red_light_update(carry.red, facts.red_light_lines)
     red_event = red_events.any() & cfg.red_light
 
@@ -214,6 +214,9 @@ class EpisodeResult:
       outside_lanes_m: () float route distance passed while off-lane, m.
       collisions_two_wheeler, invalid_action: () int32.
       episode_s: () float simulated seconds until the episode ended.
+      min_speed_pct: (K,) float ego / surrounding-traffic speed per closed
+        min-speed checkpoint, % (recorded whether or not it is penalised).
+      min_speed_valid: (K,) bool the checkpoint closed with samples.
     """
 
     route_completion: jnp.ndarray
@@ -227,6 +230,8 @@ class EpisodeResult:
     collisions_two_wheeler: jnp.ndarray
     invalid_action: jnp.ndarray
     episode_s: jnp.ndarray
+    min_speed_pct: jnp.ndarray
+    min_speed_valid: jnp.ndarray
 
 
 def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResult:
@@ -261,6 +266,8 @@ def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResu
         collisions_two_wheeler=carry.collisions_two_wheeler,
         invalid_action=carry.invalid_action,
         episode_s=carry.t_end,
+        min_speed_pct=ms.values,
+        min_speed_valid=ms.valid,
     )
 
 

@@ -20,13 +20,7 @@ import pytest
 from drivee2e_jax.metrics import criteria as cr
 from drivee2e_jax.metrics.driving_score import RouteOutcome, ScoreConfig, route_score
 from drivee2e_jax.types import Route
-
-SUBSET = Path(__file__).resolve().parent / "metric_cases_subset.json"
-
-
-def subset_case(case_id: str) -> dict:
-    cases = json.loads(SUBSET.read_text())["cases"]
-    return next(c for c in cases if c["id"] == case_id)
+from metric_cases import subset_case
 
 
 def straight_route(n_points: int, pad_to: int, spacing: float = 1.0, dtype=np.float32) -> Route:

@@ -28,12 +28,7 @@ from drivee2e_jax.metrics.driving_score import (
     status_name,
 )
 
-SUBSET = Path(__file__).resolve().parent / "metric_cases_subset.json"
-
-
-def subset_case(case_id: str) -> dict:
-    cases = json.loads(SUBSET.read_text())["cases"]
-    return next(c for c in cases if c["id"] == case_id)
+from metric_cases import subset_case  # noqa: E402  (the tests' shared case loader)
 
 
 def score64(outcome: RouteOutcome, cfg: ScoreConfig):

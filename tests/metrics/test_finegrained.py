@@ -1,0 +1,77 @@
+"""Fine-grained per-episode columns from a StepLog (hand-built logs, numpy only)."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from drivee2e_jax.metrics.finegrained import COLUMNS, episode_columns
+
+DT = 0.1
+
+
+def fake_log(t=60, speed=10.0, accel=None, offset=0.2, front=np.inf, invasions=(), collisions=(), active=None):
+    x = speed * DT * np.arange(1, t + 1)
+    return SimpleNamespace(
+        xy=np.stack([x, np.zeros(t)], 1),
+        yaw=np.zeros(t),
+        speed=np.full(t, speed),
+        accel=np.zeros(t) if accel is None else np.asarray(accel, float),
+        active=np.ones(t, bool) if active is None else np.asarray(active),
+        facts=SimpleNamespace(
+            lane_offset=np.broadcast_to(np.asarray(offset, float), (t,)).copy(),
+            front_distance=np.broadcast_to(np.asarray(front, float), (t,)).copy(),
+            lane_invasion=np.isin(np.arange(t), invasions),
+        ),
+        events=SimpleNamespace(collision=np.isin(np.arange(t), collisions)),
+    )
+
+
+def cols(log, **kw):
+    kw = {"route_length_m": 100.0, "route_completion_pct": 60.0, "dt_s": DT, **kw}
+    return episode_columns(log, **kw)
+
+
+def test_every_column_and_a_clean_constant_speed_drive():
+    c = cols(fake_log())
+    assert set(c) == set(COLUMNS)
+    assert c["jerk_lon_mean_mps3"] == 0.0 and c["longitudinal_jerk_mps"] == 0.0
+    assert c["position_deviation_mean_m"] == pytest.approx(0.2)
+    assert c["average_speed_kmh"] == pytest.approx(36.0)
+    assert c["smoothness_pct"] == 100.0
+    assert c["lane_invasions"] == 0 and c["collisions_per_km"] == 0.0
+    assert math.isnan(c["efficiency_pct"])
+
+
+def test_steps_without_an_aligned_lane_are_left_out_of_the_deviation():
+    off = np.full(60, 0.4)
+    off[:30] = np.inf
+    assert cols(fake_log(offset=off))["position_deviation_mean_m"] == pytest.approx(0.4)
+    assert math.isnan(cols(fake_log(offset=np.inf))["position_deviation_mean_m"])
+
+
+def test_corner_crossings_of_one_lane_change_are_one_invasion():
+    # Front corners cross at step 10, rear ones 5 steps later; a second change at 40.
+    c = cols(fake_log(invasions=(10, 15, 40)))
+    assert c["lane_invasions"] == 2
+    assert c["lane_invasions_per_km"] == pytest.approx(2 / 0.06)
+
+
+def test_jerk_is_the_mean_rate_of_change_of_acceleration():
+    accel = np.where(np.arange(60) % 2 == 0, 1.0, -1.0)  # flips by 2 m/s^2 every 0.1 s
+    assert cols(fake_log(accel=accel))["jerk_lon_mean_mps3"] == pytest.approx(20.0)
+
+
+def test_only_active_steps_count_and_an_empty_episode_is_all_nan():
+    active = np.arange(60) < 20
+    c = cols(fake_log(front=10.0, active=active))
+    assert c["front_time_pct_short"] == pytest.approx(100.0)
+    assert c["completed_distance_m"] == pytest.approx(19 * 1.0)
+    assert all(math.isnan(v) for v in cols(fake_log(active=np.zeros(60, bool))).values())
+
+
+def test_efficiency_is_the_mean_checkpoint_ratio_ignoring_over_1000():
+    assert cols(fake_log(), min_speed_pct=[80.0, 120.0, 5000.0])["efficiency_pct"] == pytest.approx(100.0)
