@@ -28,6 +28,9 @@ class BenchConfig:
       force: overwrite existing results.  preset: scoring rules.
       dt: sim step, s.  control_every / latency: control timing, steps.
       limit: only the first N scenarios.  seed: PRNG seed.  progress: show a bar.
+      open_loop: also score waypoint policies open-loop on the logged
+        demonstrations (L2 at 1/2/3 s in the ST-P3 and UniAD conventions,
+        box collision rate with the logged agents), in the same sweep.
     """
 
     suite: str = "twin15"
@@ -42,6 +45,7 @@ class BenchConfig:
     limit: int | None = None
     seed: int = 0
     progress: bool = True
+    open_loop: bool = False
 
 
 def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict:
@@ -80,6 +84,7 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         "control_every": cfg.control_every,
         "latency": cfg.latency,
         "seed": cfg.seed,
+        "open_loop": cfg.open_loop,
     }
     run = RunDir(out, run_info, force=cfg.force)
     print_fn(f"suite {suite.name} v{suite.version}, split {cfg.split}: {run_info['num_scenarios']} scenarios -> {out}")
@@ -93,6 +98,8 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
             pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed, limit=cfg.limit, progress=bar.update
         )
         bar.close()
+        if cfg.open_loop:
+            _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn)
         run.save_policy(
             pol.name,
             res.rows,
@@ -109,8 +116,52 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     run.write_tables(names, summary, ep.COUNT_COLUMNS)
     print_fn("")
     print_fn(format_tables(summary))
-    print_fn(f"\nper-scenario results: {out / 'scenarios.csv'}, summary: {out / 'summary.json'}")
+    from drivee2e_jax.io.report import write_report
+
+    report = write_report(out)
+    print_fn(f"\nper-scenario results: {out / 'scenarios.csv'}, summary: {out / 'summary.json'}, report: {report}")
     return summary
+
+
+#: Per-scenario open-loop columns (``openloop.evaluate_openloop``).
+OPEN_LOOP_COLUMNS = (
+    "l2_1s_stp3", "l2_2s_stp3", "l2_3s_stp3", "l2_1s_uniad", "l2_2s_uniad", "l2_3s_uniad",
+    "openloop_collision_rate", "openloop_samples",
+)
+
+
+def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, print_fn) -> None:
+    """Add the open-loop columns to ``rows`` (null for a controls policy)."""
+    import time
+
+    if pol.action_type != "waypoints":
+        print_fn(f"[{pol.name}] open-loop metrics need future waypoints; this policy outputs controls (columns left empty)")
+        for r in rows:
+            r.update({c: None for c in OPEN_LOOP_COLUMNS})
+        return
+    from drivee2e_jax.openloop import evaluate_openloop
+
+    t0 = time.perf_counter()
+    ol = evaluate_openloop(pol, packed, config=sim_cfg, seed=cfg.seed, limit=cfg.limit)
+    for r in rows:
+        got = ol[r["scenario_id"]]
+        r.update({c: (got[c] if _finite(got[c]) else None) for c in OPEN_LOOP_COLUMNS})
+    print_fn(f"[{pol.name}] open-loop on the logged demonstrations: {time.perf_counter() - t0:.1f} s")
+
+
+def _open_loop_means(rows: list[dict]) -> dict:
+    """Pooled open-loop values: per-scenario values weighted by their samples."""
+    use = [r for r in rows if r.get("openloop_samples")]
+    if not use:
+        return {}
+    w = np.array([r["openloop_samples"] for r in use], float)
+    out = {"openloop_samples": int(w.sum())}
+    for c in OPEN_LOOP_COLUMNS[:-1]:
+        v = np.array([r[c] if _finite(r.get(c)) else np.nan for r in use], float)
+        ok = np.isfinite(v)
+        if ok.any():
+            out[c] = round(float(np.sum(v[ok] * w[ok]) / np.sum(w[ok])), 4)
+    return out
 
 
 class _progress_bar:
@@ -205,6 +256,7 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
         }
     )
     out.update(_fine_means(rows))
+    out.update(_open_loop_means(rows))
     if any(r.min_speed_pct for r in recs):
         out["efficiency_pct"] = round(b2d_efficiency(recs), 4)
     return out
@@ -246,31 +298,32 @@ BEHAVIOR_ORDER = ("COV", "IPC", "UT", "YLW", "STR", "LFT", "RT", "STP")
 def format_tables(summary: dict) -> str:
     """The two tables printed at the end of a run (plain text)."""
     pols = summary["policies"]
+    nw = max(18, *(len(n) + 2 for n in pols))  # name column width
     lines = []
-    head = f"{'policy':<14}{'SR %':>7}{'DS':>8}{'RC':>8}{'IS':>7}{'coll/km':>9}{'red/km':>8}{'offlane%':>9}{'t/scn s':>9}"
+    head = f"{'policy':<{nw}}{'SR %':>7}{'DS':>8}{'RC':>8}{'IS':>7}{'coll/km':>9}{'red/km':>8}{'offlane%':>9}{'t/scn s':>9}"
     lines += ["Closed-loop results (mean over scenarios)", head, "-" * len(head)]
     for name, s in pols.items():
         o = s["overall"]
         lines.append(
-            f"{name:<14}{o['success_rate']:>7.1f}{o['driving_score']:>8.2f}{o['route_completion']:>8.2f}"
+            f"{name:<{nw}}{o['success_rate']:>7.1f}{o['driving_score']:>8.2f}{o['route_completion']:>8.2f}"
             f"{o['infraction_score']:>7.3f}{o['collisions_per_km']:>9.3f}{o['red_light_per_km']:>8.3f}"
             f"{o['outside_route_lanes_pct']:>9.2f}{o['eval_time_s']:>9.3f}"
         )
     groups = [g for g in BEHAVIOR_ORDER if any(g in s["by_behavior"] for s in pols.values())]
-    head = f"{'SR % by behaviour':<18}" + "".join(f"{g:>7}" for g in groups)
+    head = f"{'SR % by behaviour':<{nw}}" + "".join(f"{g:>7}" for g in groups)
     lines += ["", head, "-" * len(head)]
     for name, s in pols.items():
         cells = "".join(
             f"{s['by_behavior'][g]['success_rate']:>7.1f}" if g in s["by_behavior"] else f"{'-':>7}" for g in groups
         )
-        lines.append(f"{name:<18}{cells}")
-    head = f"{'DS by behaviour':<18}" + "".join(f"{g:>7}" for g in groups)
+        lines.append(f"{name:<{nw}}{cells}")
+    head = f"{'DS by behaviour':<{nw}}" + "".join(f"{g:>7}" for g in groups)
     lines += ["", head, "-" * len(head)]
     for name, s in pols.items():
         cells = "".join(
             f"{s['by_behavior'][g]['driving_score']:>7.1f}" if g in s["by_behavior"] else f"{'-':>7}" for g in groups
         )
-        lines.append(f"{name:<18}{cells}")
+        lines.append(f"{name:<{nw}}{cells}")
     fine = (
         ("dev m", "position_deviation_mean_m", 8.3),
         ("km/h", "average_speed_kmh", 7.1),
@@ -280,14 +333,25 @@ def format_tables(summary: dict) -> str:
         ("smooth%", "smoothness_pct", 9.1),
         ("eff%", "efficiency_pct", 7.1),
     )
-    head = f"{'fine-grained':<14}" + "".join(f"{h:>{int(w)}}" for h, _, w in fine)
+    head = f"{'fine-grained':<{nw}}" + "".join(f"{h:>{int(w)}}" for h, _, w in fine)
     lines += ["", head, "-" * len(head)]
     for name, s in pols.items():
         o = s["overall"]
         cells = "".join(
             f"{o[k]:>{w}f}" if k in o else f"{'-':>{int(w)}}" for _, k, w in fine
         )
-        lines.append(f"{name:<14}{cells}")
+        lines.append(f"{name:<{nw}}{cells}")
+    ol = [(name, s["overall"]) for name, s in pols.items() if "l2_1s_stp3" in s["overall"]]
+    if ol:
+        head = f"{'open-loop':<{nw}}" + "".join(
+            f"{h:>9}" for h in ("L2@1s", "L2@2s", "L2@3s", "L2@1s*", "L2@2s*", "L2@3s*", "coll%")
+        )
+        lines += ["", head, "-" * len(head)]
+        for name, o in ol:
+            vals = [o.get(f"l2_{k}s_stp3") for k in (1, 2, 3)] + [o.get(f"l2_{k}s_uniad") for k in (1, 2, 3)]
+            vals.append(100 * o["openloop_collision_rate"] if "openloop_collision_rate" in o else None)
+            lines.append(f"{name:<{nw}}" + "".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in vals))
+        lines.append("(L2 in m, ST-P3 convention = mean over steps up to t; * = UniAD convention = value at t)")
     n = summary["run"].get("num_scenarios")
     lines.append(f"\n(n = {n} scenarios per policy; group sizes in summary.json)")
     lines.append(

@@ -91,3 +91,26 @@ def test_policy_file_without_policy(tmp_path, capsys, suite_dir, monkeypatch):
     rc = main(["bench", "--suite", str(suite_dir), "--out", str(tmp_path / "o"), "--no-progress", "--policy", str(bad)])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "defines neither `policy` nor `make_policy()`" in err and str(bad) in err
+
+
+def test_open_loop_columns_fine_grained_metrics_and_report(suite_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "ol"
+    assert main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress", "--open-loop",
+                 "--policy", "constant_velocity", "--policy", "log_replay"]) == 0
+    printed = capsys.readouterr().out
+    assert "open-loop" in printed and "outputs controls" in printed and "fine-grained" in printed
+    rows = list(csv.DictReader((out / "scenarios.csv").open()))
+    for col in ("l2_1s_stp3", "l2_2s_stp3", "l2_3s_stp3", "l2_1s_uniad", "l2_2s_uniad", "l2_3s_uniad",
+                "openloop_collision_rate", "position_deviation_mean_m", "lane_invasions_per_km", "smoothness_pct"):
+        assert col in rows[0], col
+    cv = {r["scenario_id"]: r for r in rows if r["policy"] == "constant_velocity"}
+    lr = [r for r in rows if r["policy"] == "log_replay"]
+    # The logged ego drives at a constant 10 m/s straight: constant velocity is exact.
+    assert float(cv["clean"]["l2_3s_stp3"]) == pytest.approx(0.0, abs=0.05)
+    assert all(r["l2_1s_stp3"] == "" for r in lr)  # a controls policy has no open-loop columns
+    summary = json.loads((out / "summary.json").read_text())
+    o = summary["policies"]["constant_velocity"]["overall"]
+    assert o["openloop_samples"] > 0 and "l2_2s_uniad" in o and "smoothness_pct" in o
+    report = (out / "report.md").read_text()
+    assert "constant_velocity" in report and (out / "plots" / "sr_by_behavior.png").stat().st_size > 1000

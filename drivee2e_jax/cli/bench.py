@@ -11,13 +11,18 @@ examples:
   drivee2e bench                                   # twin15 val, the three reference policies
   drivee2e bench --policy policies/expert.py --split test --out results/expert-test
   drivee2e bench --suite path/to/suite --policy my_policy.py --control-every 2 --latency 1
+  drivee2e bench --open-loop --policy constant_velocity --policy expert --out results/ol
 
-Reference policies can be named without a path: log_replay, expert, stop.
+Reference policies can be named without a path: log_replay, expert, stop,
+constant_velocity. --open-loop adds L2 at 1/2/3 s (ST-P3 and UniAD
+conventions) and the open-loop collision rate for waypoint policies.
 Results go to results/<suite>-<split>/ unless --out is given; a rerun resumes
 (finished policies are skipped) and never overwrites without --force.
 """
 
 DEFAULT_POLICIES = ("log_replay", "expert", "stop")
+#: Policies in the repository's policies/ folder, accepted by name.
+REFERENCE_POLICIES = (*DEFAULT_POLICIES, "constant_velocity")
 
 
 def add_parser(subparsers) -> None:
@@ -51,6 +56,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("--latency", type=int, default=0, help="action latency in sim steps (default: 0)")
     p.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenarios of the split")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (observation noise, stochastic policies)")
+    p.add_argument(
+        "--open-loop",
+        action="store_true",
+        help="also score waypoint policies open-loop on the logged demonstrations (L2 at 1/2/3 s, collision rate)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -62,12 +72,12 @@ def resolve_policy_path(spec: str) -> Path:
     path = Path(spec)
     if path.suffix == ".py" or path.exists():
         if not path.is_file():
-            raise DriveE2EError(f"{spec}: policy file not found (expected a .py file or one of {', '.join(DEFAULT_POLICIES)})")
+            raise DriveE2EError(f"{spec}: policy file not found (expected a .py file or one of {', '.join(REFERENCE_POLICIES)})")
         return path
     ref = reference_policy_dir() / f"{spec}.py"
     if ref.is_file():
         return ref
-    raise DriveE2EError(f"--policy {spec}: not a file and not a reference policy (expected a .py path or one of {', '.join(DEFAULT_POLICIES)})")
+    raise DriveE2EError(f"--policy {spec}: not a file and not a reference policy (expected a .py path or one of {', '.join(REFERENCE_POLICIES)})")
 
 
 def reference_policy_dir() -> Path:
@@ -93,6 +103,7 @@ def run(args) -> int:
         limit=args.limit,
         seed=args.seed,
         progress=not args.no_progress,
+        open_loop=args.open_loop,
     )
     run_bench(cfg, print_fn=print)
     return 0

@@ -1,0 +1,130 @@
+"""The PNG figures of a run report (host side, matplotlib Agg, no pyplot state).
+
+``write_plots(folder, ...)`` draws, each written atomically (temp file in the
+same folder + ``os.replace``):
+
+* ``sr_by_behavior.png`` / ``ds_by_behavior.png``: grouped bars, one colour per
+  policy, x = behaviour group (with its size); error bars = std over
+  repetitions when there are several.
+* ``metric_distributions.png``: one box plot panel per column (DS, RC and a
+  few other numeric columns), one box per policy, pooled over repetitions.
+
+matplotlib is imported inside the functions so importing this module is cheap.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+#: Distinct, colour-blind-friendly enough for up to 10 policies (tab10).
+_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
+           "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
+_LABELS = {"driving_score": "Driving score DS", "route_completion": "Route completion RC %",
+           "success_rate": "Success rate SR %"}
+
+
+def write_plots(folder: Path, policies: list[str], groups: list[str], sizes: list[int], sr: dict, ds: dict,
+                distributions: dict[str, dict[str, list[float]]], repetitions: int) -> dict[str, str]:
+    """Draw every figure into ``folder``; returns {name: path relative to the run folder}."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    reps = f"\n(mean ± std over {repetitions} repetitions)" if repetitions > 1 else ""
+    out = {}
+    if groups:
+        for name, values, label in (("sr_by_behavior", sr, "Success rate SR %"), ("ds_by_behavior", ds, "Driving score DS")):
+            _save(grouped_bars(policies, groups, sizes, values, label, f"{label} by behaviour group{reps}"),
+                  folder / f"{name}.png")
+            out[name] = f"{folder.name}/{name}.png"
+    _save(distributions_grid(policies, distributions), folder / "metric_distributions.png")
+    out["metric_distributions"] = f"{folder.name}/metric_distributions.png"
+    return out
+
+
+def grouped_bars(policies, groups, sizes, values: dict[str, list], ylabel: str, title: str):
+    """Bars per group, one per policy; ``values[policy][i]`` is (mean, std) or None. Scale 0-100."""
+    from matplotlib.figure import Figure
+
+    width_in = min(16.0, max(8.0, 0.4 * len(groups) * max(len(policies), 2) + 2.5))
+    fig = Figure(figsize=(width_in, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    width = 0.8 / max(len(policies), 1)
+    for i, p in enumerate(policies):
+        xs = [g + (i - (len(policies) - 1) / 2) * width for g in range(len(groups))]
+        ms = [v[0] if v else math.nan for v in values[p]]
+        errs = [v[1] if v else 0.0 for v in values[p]]
+        bars = ax.bar(xs, ms, width * 0.92, color=_color(i), label=p,
+                      yerr=errs if any(errs) else None, capsize=2, error_kw={"elinewidth": 0.8})
+        # values on the bars, so a 0 is told apart from a missing group
+        ax.bar_label(bars, fmt="{:.0f}", fontsize=6.5, padding=1.5, rotation=90 if len(policies) > 4 else 0)
+    ax.set_xticks(range(len(groups)), [f"{g}\nn={n}" for g, n in zip(groups, sizes)])
+    ax.set_ylim(0, 112)
+    ax.set_yticks(range(0, 101, 20))
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(axis="y", alpha=0.3)
+    ax.set_axisbelow(True)
+    fig.legend(loc="outside right upper", frameon=False, title="policy")
+    return fig
+
+
+def distributions_grid(policies, distributions: dict[str, dict[str, list[float]]]):
+    """One box-plot panel per column; a box per policy (white diamond = mean)."""
+    from matplotlib.figure import Figure
+
+    cols = list(distributions)
+    nrows = math.ceil(len(cols) / 4)
+    ncols = math.ceil(len(cols) / nrows)  # balanced rows: 5 panels -> 3 + 2, not 4 + 1
+    fig = Figure(figsize=(3.2 * ncols + 1.8, 3.0 * nrows + 0.4), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    # policy names under the boxes only while they fit; the colour legend always names them
+    named = len(policies) <= 4 and max(map(len, policies), default=0) <= 12
+    for ax, col in zip(axes, cols):
+        data = [distributions[col].get(p, []) for p in policies]
+        box = ax.boxplot(data, patch_artist=True, showmeans=True, widths=0.6,
+                         meanprops={"marker": "D", "markerfacecolor": "white", "markeredgecolor": "black",
+                                    "markersize": 4},
+                         medianprops={"color": "black"}, flierprops={"markersize": 2.5, "alpha": 0.5})
+        for i, patch in enumerate(box["boxes"]):
+            patch.set_facecolor(_color(i))
+            patch.set_alpha(0.8)
+        ax.set_title(_LABELS.get(col, col), fontsize=10)
+        ax.set_xticks(range(1, len(policies) + 1), policies if named else [""] * len(policies), fontsize=8)
+        ax.grid(axis="y", alpha=0.3)
+        ax.set_axisbelow(True)
+    for ax in axes[len(cols):]:
+        ax.set_visible(False)
+    handles = [_patch(_color(i)) for i in range(len(policies))]
+    fig.legend(handles, policies, loc="outside right upper", frameon=False, title="policy")
+    fig.suptitle("Per-scenario distributions per policy (box: quartiles, whiskers 1.5 IQR, ◇ mean)", fontsize=10)
+    return fig
+
+
+def _patch(color):
+    from matplotlib.patches import Patch
+
+    return Patch(facecolor=color, alpha=0.8, edgecolor="black")
+
+
+def _color(i: int) -> str:
+    return _COLORS[i % len(_COLORS)]
+
+
+def _save(fig, path: Path, dpi: int = 130) -> None:
+    """Render ``fig`` with Agg to a temp file next to ``path``, then ``os.replace``."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            fig.savefig(f, format="png", dpi=dpi)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

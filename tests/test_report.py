@@ -1,0 +1,169 @@
+"""`io.report.write_report` on small synthetic run folders: tables, numbers, PNGs, repetitions, atomic rewrite."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("matplotlib")
+
+from drivee2e_jax.bench import BEHAVIOR_ORDER, summarize  # noqa: E402
+from drivee2e_jax.io import report  # noqa: E402
+from drivee2e_jax.io.results import BASE_COLUMNS, atomic_write_json, atomic_write_text, rows_to_csv  # noqa: E402
+
+#: scenarios.csv header of a real run (twin15 val), plus a column no code knows about.
+HEADER = (
+    "policy,scenario_id,split,intersection_id,behavior,weather,time_of_day,route_length_m,route_completion,"
+    "infraction_score,driving_score,success,status,episode_s,eval_time_s,collisions_pedestrian,collisions_vehicle,"
+    "collisions_layout,red_light,outside_route_lanes,min_speed_infractions,route_dev,vehicle_blocked,route_timeout,"
+    "invalid_action,collisions_cyclist_motorcycle"
+).split(",") + ["l2_1s_stp3"]
+COUNTS = HEADER[len(BASE_COLUMNS):-1]
+RUN_INFO = {"suite": "toy", "suite_version": "1", "split": "val", "num_scenarios": 10, "preset": "paper", "dt": 0.1,
+            "control_every": 1, "latency": 0, "seed": 0}
+BEHAVIORS = ["COV"] * 4 + ["IPC"] * 4 + ["STR"] * 2
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _row(policy, i, status="Perfect", rc=100.0, collisions=0, l2=0.5, rep=None):
+    is_ = 0.6 ** collisions
+    row = {
+        "policy": policy, "scenario_id": f"toy_{i:04d}", "split": "val", "intersection_id": f"I0{1 + i % 2}",
+        "behavior": BEHAVIORS[i], "weather": "rain" if i < 3 else "clear", "time_of_day": "day",
+        "route_length_m": 100.0 + 10 * i, "route_completion": rc, "infraction_score": is_,
+        "driving_score": rc * is_, "success": status == "Perfect", "status": status,
+        "outside_route_lanes_pct": 0.0, "outside_route_lanes_m": 0.0, "episode_s": 10.0 + i, "eval_time_s": 0.1,
+        **{c: 0 for c in COUNTS}, "collisions_vehicle": collisions, "l2_1s_stp3": l2,
+    }
+    if rep is not None:
+        row["repetition"] = rep
+    return row
+
+
+def _policies(rep=0):
+    """good: fails IPC toy_0004 (timeout at RC 50) and toy_0005 (a collision); in repetition 1 also COV toy_0000.
+    bad: stops short on every COV scenario, fine elsewhere."""
+    good = [_row("good", i, l2=0.4 if i % 2 else 0.6) for i in range(10)]
+    good[4] = _row("good", 4, "Failed - TickRuntime", rc=50.0, l2=0.6)
+    good[5] = _row("good", 5, "Completed", collisions=1, l2=0.4)
+    if rep == 1:
+        good[0] = _row("good", 0, "Failed - TickRuntime", rc=20.0, l2=0.6)
+    bad = [_row("bad", i, "Failed - TickRuntime", rc=10.0 * (i + 1), l2=1.5) if i < 4 else _row("bad", i, l2=1.5)
+           for i in range(10)]
+    return {"good": good, "bad": bad}
+
+
+def _write_run(folder: Path, reps: int = 1) -> Path:
+    by_policy = {"good": [], "bad": []}
+    for rep in range(reps):
+        for p, rows in _policies(rep).items():
+            by_policy[p] += [{**r, "repetition": rep} if reps > 1 else r for r in rows]
+    header = HEADER + (["repetition"] if reps > 1 else [])
+    atomic_write_json(folder / "run.json", RUN_INFO)
+    atomic_write_json(folder / "summary.json", summarize(by_policy, RUN_INFO))
+    atomic_write_text(folder / "scenarios.csv", rows_to_csv([r for rs in by_policy.values() for r in rs], header))
+    return folder
+
+
+def _table_row(md: str, first_cell: str, after: str) -> list[str]:
+    """Cells of the first table row starting with ``first_cell`` below the line containing ``after``."""
+    text = md[md.index(after):]
+    line = next(ln for ln in text.splitlines() if ln.startswith(f"| {first_cell} |"))
+    return [c.strip() for c in line.strip("|").split("|")][1:]
+
+
+def _check_pngs(run: Path) -> dict[str, int]:
+    inodes = {}
+    for name in ("sr_by_behavior", "ds_by_behavior", "metric_distributions"):
+        png = run / "plots" / f"{name}.png"
+        data = png.read_bytes()
+        assert data.startswith(PNG) and len(data) > 10_000, name
+        inodes[name] = png.stat().st_ino
+    return inodes
+
+
+def _no_temp_files(run: Path) -> None:
+    left = [p.name for p in run.rglob("*") if p.name.startswith(".") or p.name.endswith(".tmp")]
+    assert not left, left
+
+
+def test_behaviour_order_is_the_benchmarks():
+    assert report.BEHAVIOR_ORDER == BEHAVIOR_ORDER
+
+
+def test_one_repetition_tables_and_plots(tmp_path):
+    run = _write_run(tmp_path / "run")
+    path = report.write_report(run)
+    assert path == run / "report.md"
+    md = path.read_text()
+
+    assert "# Benchmark report: toy / val" in md and "10 scenarios × 2 policies" in md
+    # Comparison: straight from summary.json (good: 8 of 10 succeed, DS = (8*100 + 50 + 60) / 10;
+    # bad: DS = (10 + 20 + 30 + 40 + 6*100) / 10).
+    assert _table_row(md, "Success rate SR %", "## Policy comparison") == ["80.0", "60.0"]
+    assert _table_row(md, "Driving score DS", "## Policy comparison") == ["91.00", "70.00"]
+    assert _table_row(md, "status: Completed", "## Policy comparison") == ["1", "0"]
+    # Behaviour groups in Table 5 order with their sizes; UT etc. absent from the suite are left out.
+    sr = md[md.index("### Success rate SR %"):]
+    assert "| policy | COV (n=4) | IPC (n=4) | STR (n=2) | mean of groups |" in sr
+    assert _table_row(md, "`good`", "### Success rate SR %") == ["100.0", "50.0", "100.0", "83.3"]
+    assert _table_row(md, "`bad`", "### Success rate SR %") == ["0.0", "100.0", "100.0", "66.7"]
+    assert _table_row(md, "`bad`", "### Driving score DS") == ["25.00", "100.00", "100.00", "75.00"]
+    assert _table_row(md, "I01", "## Per intersection")[0] == "5"
+    assert _table_row(md, "rain", "## Per weather")[:3] == ["3", "100.0", "100.00"]
+    # Counts and the column no code knows about (mean ± sample std over scenarios).
+    assert _table_row(md, "`collisions_vehicle`", "## Infraction") == ["1", "0"]
+    assert "`red_light`" in md[md.index("Zero for every policy"):]
+    l2 = _table_row(md, "`l2_1s_stp3`", "## Other per-scenario columns")
+    assert l2 == [f"0.50 ± {math.sqrt(10 * 0.01 / 9):.2f}", "1.50 ± 0.00"]  # 2 decimals: values up to 1.5
+    assert "`success`" not in md[md.index("## Other"):] and "`scenario_id`" not in md
+    # Failed scenarios, worst DS first, with status and infractions.
+    assert "### `good`: 2 of 10 episodes unsuccessful" in md
+    assert _table_row(md, "toy_0004", "### `good`")[3:] == ["Failed - TickRuntime", "50.0", "50.00", "—"]
+    assert _table_row(md, "toy_0005", "### `good`")[-1] == "collisions_vehicle 1"
+    for img in ("plots/sr_by_behavior.png", "plots/ds_by_behavior.png", "plots/metric_distributions.png"):
+        assert f"]({img})" in md
+    _check_pngs(run)
+    _no_temp_files(run)
+
+
+def test_repetitions_are_mean_and_std_over_repetitions(tmp_path):
+    run = _write_run(tmp_path / "run", reps=2)
+    md = report.write_report(run).read_text()
+
+    assert "**2 repetitions**" in md
+    # good: SR 80 in repetition 0, 70 in repetition 1.
+    assert _table_row(md, "Success rate SR %", "## Policy comparison") == ["75.0 ± 7.1", "60.0 ± 0.0"]
+    assert _table_row(md, "Scenarios", "## Policy comparison") == ["10.0 ± 0.0", "10.0 ± 0.0"]
+    # COV: 4/4 then 3/4.
+    assert _table_row(md, "`good`", "### Success rate SR %")[:2] == ["87.5 ± 17.7", "50.0 ± 0.0"]
+    assert "COV (n=4)" in md
+    assert _table_row(md, "status: Perfect", "## Policy comparison") == ["7.5 ± 0.7", "6.0 ± 0.0"]
+    assert _table_row(md, "`collisions_vehicle`", "## Infraction") == ["1.0 ± 0.0", "0.0 ± 0.0"]
+    # Off-lane % is not a CSV column: unknown when recomputed, not a made-up 0.
+    assert _table_row(md, "Off-lane %", "## Policy comparison") == ["–", "–"]
+    assert "### `good`: 5 of 20 episodes unsuccessful" in md
+    assert "| scenario | repetition |" in md
+    _check_pngs(run)
+
+
+def test_second_call_replaces_files_atomically(tmp_path, monkeypatch):
+    run = _write_run(tmp_path / "run", reps=2)
+    first = report.write_report(run)
+    inode_md, inodes_png = first.stat().st_ino, _check_pngs(run)
+    monkeypatch.setattr(report, "MAX_FAILED", 3)
+    second = report.write_report(run)
+    md = second.read_text()
+    assert "### `bad`: 8 of 20 episodes unsuccessful; the 3 worst shown" in md
+    # bad's worst: toy_0000 (DS 10) in both repetitions; good's worst: toy_0000 (DS 20) in repetition 1.
+    assert md.count("| toy_0000 |") == 3
+    # Replaced (a new file moved over the old one), not rewritten in place; nothing left behind.
+    assert second.stat().st_ino != inode_md
+    assert all(a != b for a, b in zip(_check_pngs(run).values(), inodes_png.values()))
+    _no_temp_files(run)
+    assert sorted(os.listdir(run)) == ["plots", "report.md", "run.json", "scenarios.csv", "summary.json"]
+    assert json.loads((run / "run.json").read_text()) == RUN_INFO
