@@ -65,11 +65,7 @@ def evaluate(
       progress: ``progress(done_steps, total_steps)`` after every chunk.
     """
     packed = suite.pack(split) if hasattr(suite, "pack") else suite
-    batch, meta = packed.scenario, packed.meta
-    if limit is not None:
-        batch = jax.tree_util.tree_map(lambda a: a[:limit], batch)
-        meta = meta.select(np.arange(min(limit, len(meta))))
-    batch = jax.tree_util.tree_map(jnp.asarray, batch)
+    batch, meta = device_batch(packed, limit)
     sim = Simulator(config or SimConfig())
     key = jax.random.PRNGKey(seed)
     if params is None:
@@ -104,6 +100,15 @@ def evaluate(
     per_scn = (compile_s + wall_s) / max(b, 1)
     rows, events = _rows_and_events(policy.name, meta, batch, results, stacked, sim.config, per_scn)
     return EvalResult(rows=rows, events=events, logs=stacked, compile_s=compile_s, wall_s=wall_s, steps=min(steps, total))
+
+
+def device_batch(packed, limit: int | None = None):
+    """(Scenario batch as device arrays, meta table), cut to the first ``limit`` scenarios."""
+    batch, meta = packed.scenario, packed.meta
+    if limit is not None:
+        batch = jax.tree_util.tree_map(lambda a: a[:limit], batch)
+        meta = meta.select(np.arange(min(limit, len(meta))))
+    return jax.tree_util.tree_map(jnp.asarray, batch), meta
 
 
 def _init_params(policy, sim: Simulator, batch, key):

@@ -45,6 +45,7 @@ from flax import struct
 
 from drivee2e_jax import geometry, replay
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.evaluation import device_batch
 from drivee2e_jax.metrics import openloop as olm
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Controls, Waypoints
@@ -241,11 +242,7 @@ def collect_openloop(
     _check_args(policy, horizon, waypoint_dt, every)
     if hasattr(packed, "pack"):
         raise DriveE2EError("evaluate_openloop expects a PackedBatch (e.g. suite.pack('val')), got a Suite")
-    batch, meta = packed.scenario, packed.meta
-    if limit is not None:
-        batch = jax.tree_util.tree_map(lambda a: a[:limit], batch)
-        meta = meta.select(np.arange(min(limit, len(meta))))
-    batch = jax.tree_util.tree_map(jnp.asarray, batch)
+    batch, meta = device_batch(packed, limit)
     sim = Simulator(config or SimConfig())
     b = int(batch.ego_index.shape[0])
     key = jax.random.PRNGKey(seed)

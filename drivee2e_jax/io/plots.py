@@ -15,8 +15,6 @@ matplotlib is imported inside the functions so importing this module is cheap.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 #: Distinct, colour-blind-friendly enough for up to 10 policies (tab10).
@@ -113,18 +111,10 @@ def _color(i: int) -> str:
 
 
 def _save(fig, path: Path, dpi: int = 130) -> None:
-    """Render ``fig`` with Agg to a temp file next to ``path``, then ``os.replace``."""
+    """Render ``fig`` with Agg and write the PNG atomically."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
+    from drivee2e_jax.io.results import atomic_write
+
     FigureCanvasAgg(fig)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png", dpi=dpi)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=dpi), binary=True)
