@@ -7,8 +7,13 @@
   status, success) for one route.
 * ``aggregate``: host-side aggregation over routes (LB 2.0 global record,
   Bench2Drive merge/efficiency, DriveE2E DS/SR/abilities).
+* ``finegrained``: host-side per-episode columns from a ``StepLog``, built on
+  ``behavior`` (Behavior Metrics, paper and tool-code definitions) and
+  ``comfort`` (Bench2Drive smoothness).
+* ``openloop``: L2 and collision conventions of UniAD / ST-P3 / VAD (the
+  driver that runs a policy on the demonstrations is ``drivee2e_jax.openloop``).
 
-Definitions: ``shared/reference/METRICS.md`` sections 1-3.
+Definitions: ``shared/reference/METRICS.md`` sections 1-5.
 """
 
 from drivee2e_jax.metrics import aggregate, criteria, driving_score
