@@ -121,16 +121,17 @@ def _init_params(policy, sim: Simulator, batch, key):
 def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_scenario):
     rows, events = [], {}
     route_len = np.asarray(batch.route.length)
-    for i, m in enumerate(meta.rows()):
+    fine_rows = finegrained.batch_columns(
+        logs,
+        route_length_m=route_len,
+        route_completion_pct=np.asarray(res.route_completion),
+        dt_s=cfg.dt,
+        min_speed_pct=np.asarray(res.min_speed_pct),
+        min_speed_valid=np.asarray(res.min_speed_valid),
+    )
+    for i, (m, fine) in enumerate(zip(meta.rows(), fine_rows)):
         counts = {k: int(v[i]) for k, v in ep.counts_dict(res).items()}
         log_i = jax.tree_util.tree_map(lambda a: a[i], logs)
-        fine = finegrained.episode_columns(
-            log_i,
-            route_length_m=float(route_len[i]),
-            route_completion_pct=float(res.route_completion[i]),
-            dt_s=cfg.dt,
-            min_speed_pct=res.min_speed_pct[i][res.min_speed_valid[i]],
-        )
         row = {
             "policy": name,
             "scenario_id": m["scenario_id"],

@@ -217,34 +217,65 @@ def _cross2(u, v):
     return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
-def lane_invasion(prev: EgoState, ego: EgoState, ego_lw, bnd_xy, bnd_point_valid, bnd_valid, bnd_marking):
+@struct.dataclass
+class MarkingSegments:
+    """Painted lane-marking segments near the route, flattened (per episode).
+
+    Attributes:
+      a:       (K, 2) segment start points, m.
+      ab:      (K, 2) segment vectors (end - start), m.
+      marking: (K,) int32 ``Marking`` of the segment's line; ``NONE`` for
+               padding, invalid points and unpainted lines (road edges).
+    """
+
+    a: jnp.ndarray
+    ab: jnp.ndarray
+    marking: jnp.ndarray
+
+
+def marking_segments(bnd_xy, bnd_point_valid, bnd_valid, bnd_marking) -> MarkingSegments:
+    """The painted segments of M boundary polylines, computed once at reset.
+
+    Only painted markings count (dashed, solid, double solid); road edges
+    are the off-road criteria's business.
+
+    Args:
+      bnd_xy: (M, N, 2) boundary polylines, m; bnd_point_valid (M, N) bool;
+      bnd_valid: (M,) bool; bnd_marking: (M,) int32 ``Marking``.
+
+    Returns: ``MarkingSegments`` with K = M * (N - 1).
+    """
+    a, b = bnd_xy[:, :-1], bnd_xy[:, 1:]
+    seg_ok = bnd_point_valid[:, :-1] & bnd_point_valid[:, 1:]
+    painted = bnd_valid & (bnd_marking >= Marking.DASHED) & (bnd_marking <= Marking.DOUBLE_SOLID)
+    marking = jnp.where(seg_ok & painted[:, None], bnd_marking[:, None], Marking.NONE).astype(jnp.int32)
+    return MarkingSegments(a=a.reshape(-1, 2), ab=(b - a).reshape(-1, 2), marking=marking.reshape(-1))
+
+
+def lane_invasion(prev: EgoState, ego: EgoState, ego_lw, segments: MarkingSegments):
     """Whether a corner of the ego box crossed a painted lane marking this tick.
 
     CARLA's lane-invasion sensor (the input of Behavior Metrics' lane
     invasions) fires when the vehicle's box crosses a marking. Each corner's
     motion over the tick (last tick's corner -> this tick's) is tested for a
-    proper crossing with every segment of the candidate boundaries (M of
-    them, near the route). Only painted markings count (dashed, solid,
-    double solid); road edges are the off-road criteria's business.
+    proper crossing with every painted segment of ``segments``
+    (``marking_segments`` of the boundaries near the route, built at reset
+    so no map rows are gathered per step).
 
     Args:
       prev, ego: the ego before and after the tick.  ego_lw: (2,) m.
-      bnd_xy: (M, N, 2) boundary polylines; bnd_point_valid (M, N);
-      bnd_valid: (M,) bool; bnd_marking: (M,) int32 ``Marking``.
+      segments: ``MarkingSegments`` (K,).
 
     Returns (crossed: bool, the crossed line's ``Marking``: int32, strictest).
     """
     c0 = geometry.box_corners(prev.xy, prev.yaw, ego_lw[0], ego_lw[1])  # (4, 2)
     c1 = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
-    a, b = bnd_xy[:, :-1], bnd_xy[:, 1:]  # (M, N-1, 2)
-    seg_ok = bnd_point_valid[:, :-1] & bnd_point_valid[:, 1:]
-    painted = bnd_valid & (bnd_marking >= Marking.DASHED) & (bnd_marking <= Marking.DOUBLE_SOLID)
-    p0, p1 = c0[:, None, None], c1[:, None, None]  # (4, 1, 1, 2)
-    ab = b - a
+    a, ab = segments.a, segments.ab  # (K, 2)
+    p0, p1 = c0[:, None], c1[:, None]  # (4, 1, 2)
     o1, o2 = _cross2(ab, p0 - a), _cross2(ab, p1 - a)
     d = p1 - p0
-    o3, o4 = _cross2(d, a - p0), _cross2(d, b - p0)
-    hit = (o1 * o2 < 0) & (o3 * o4 < 0) & seg_ok & painted[:, None]  # (4, M, N-1)
-    per_line = hit.any(axis=(0, 2))
-    marking = jnp.max(jnp.where(per_line, bnd_marking, Marking.NONE))
-    return per_line.any(), marking.astype(jnp.int32)
+    o3 = _cross2(d, a - p0)
+    o4 = o3 + _cross2(d, ab)  # cross(d, b - p0) with b = a + ab
+    hit = (o1 * o2 < 0) & (o3 * o4 < 0)  # (4, K)
+    marking = jnp.max(jnp.where(hit.any(axis=0), segments.marking, Marking.NONE))
+    return marking > Marking.NONE, marking.astype(jnp.int32)

@@ -95,7 +95,8 @@ class SimContext:
 
     Attributes:
       lanes:     (M,) int32 candidate lane rows near the route (-1 padded).
-      boundaries: (M_b,) int32 candidate lane-boundary rows near the route (-1 padded).
+      markings:  ``infractions.MarkingSegments`` of the painted lane boundaries
+                 near the route (lane-invasion test).
       stop_dir:  (S, 2) float32 travel direction across each stop line.
       stop_arc:  (S,) float32 route arc where the route crosses each stop line
                  (inf if it does not).
@@ -105,7 +106,7 @@ class SimContext:
     """
 
     lanes: jnp.ndarray
-    boundaries: jnp.ndarray
+    markings: infractions.MarkingSegments
     stop_dir: jnp.ndarray
     stop_arc: jnp.ndarray
     ego_lw: jnp.ndarray
@@ -214,6 +215,16 @@ def _lane_rows(scenario: Scenario, idx):
     )
 
 
+def _route_markings(scenario: Scenario) -> infractions.MarkingSegments:
+    """Painted marking segments of the boundaries nearest the route."""
+    idx = _near_route(scenario.map.boundaries, scenario.route, NUM_CANDIDATE_BOUNDARIES)
+    safe = jnp.maximum(idx, 0)
+    bl = scenario.map.boundaries
+    return infractions.marking_segments(
+        bl.xy[safe], bl.point_valid[safe], bl.valid[safe] & (idx >= 0), scenario.map.boundary_marking[safe]
+    )
+
+
 def _route_speed_limits(scenario: Scenario, idx):
     lane_xy, lane_pv, lane_ok, _ = _lane_rows(scenario, idx)
     limit = scenario.map.lane_speed_limit[jnp.maximum(idx, 0)]
@@ -280,7 +291,7 @@ class Simulator:
         lanes = _candidate_lanes(scenario, NUM_CANDIDATE_LANES)
         ctx = SimContext(
             lanes=lanes,
-            boundaries=_near_route(scenario.map.boundaries, scenario.route, NUM_CANDIDATE_BOUNDARIES),
+            markings=_route_markings(scenario),
             stop_dir=infractions.stop_line_directions(scenario.map),
             stop_arc=_route_stop_arcs(scenario),
             ego_lw=tr.size[i, :2],
@@ -330,8 +341,10 @@ class Simulator:
         )
         key, k_obs = jax.random.split(state.key)
         new = SimState(ego=ego, step=state.step + 1, episode=episode, controller=cstate, ctx=state.ctx, key=key)
-        # Freeze finished episodes: keep the old state, record nothing.
-        new = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, state)
+        # Freeze finished episodes: keep the old state, record nothing (the
+        # per-episode constants in ctx need no select).
+        new = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new.replace(ctx=None), state.replace(ctx=None))
+        new = new.replace(ctx=state.ctx)
         obs = self._observe(scenario, new, agents, k_obs)
         log = StepLog(
             t=new.ego.t,
@@ -364,13 +377,7 @@ class Simulator:
         lane_xy, lane_pv, lane_ok, lane_w = _lane_rows(scenario, state.ctx.lanes)
         off, offset = infractions.lane_status(ego, lane_xy, lane_pv, lane_ok, lane_w)
         bg, bg_ok = infractions.background_speed(ego, agents, tr.category)
-        bnd = state.ctx.boundaries
-        safe = jnp.maximum(bnd, 0)
-        bl = scenario.map.boundaries
-        invaded, invaded_marking = infractions.lane_invasion(
-            state.ego, ego, lw, bl.xy[safe], bl.point_valid[safe], bl.valid[safe] & (bnd >= 0),
-            scenario.map.boundary_marking[safe],
-        )
+        invaded, invaded_marking = infractions.lane_invasion(state.ego, ego, lw, state.ctx.markings)
         return infractions.StepFacts(
             agent_hit=hit,
             agent_hit_id=hit_id,

@@ -34,7 +34,9 @@ def _lines(*polys, n=8):
 DASHED_Y0 = np.array([[-50.0, 0.0], [0.0, 0.0], [50.0, 0.0]])
 EDGE_Y5 = np.array([[-50.0, 5.0], [50.0, 5.0]])
 
-invasion = jax.jit(inf.lane_invasion)
+@jax.jit
+def invasion(prev, ego, lw, xy, pv, valid, marking):
+    return inf.lane_invasion(prev, ego, lw, inf.marking_segments(xy, pv, valid, marking))
 
 
 def _call(prev, ego, polys, markings, valid=None):

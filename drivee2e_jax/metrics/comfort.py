@@ -17,6 +17,7 @@ smoothness", "Efficiency"), from Bench2Drive 0.0.4
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Sequence
 
@@ -41,10 +42,14 @@ B2D_DELTA_S = 0.1
 B2D_CHUNK = 20
 
 
-def _fit_weights(window: int, polyorder: int, at: np.ndarray, deriv: int, delta: float) -> np.ndarray:
+@functools.lru_cache(maxsize=256)
+def _fit_weights(window: int, polyorder: int, at: tuple[float, ...], deriv: int, delta: float) -> np.ndarray:
     """(len(at), window) weights: the ``deriv``-th derivative, at positions
     ``at`` (in samples from the window's first sample), of the least-squares
-    polynomial of order ``polyorder`` through the window's samples."""
+    polynomial of order ``polyorder`` through the window's samples.
+
+    Cached: a sweep filters thousands of chunks with the same few windows.
+    The returned array is read-only (shared between callers)."""
     c = (window - 1) / 2.0
     scale = max(c, 1.0)  # abscissae centred and scaled to [-1, 1]: a well-conditioned fit
     u = (np.arange(window) - c) / scale
@@ -52,11 +57,13 @@ def _fit_weights(window: int, polyorder: int, at: np.ndarray, deriv: int, delta:
     pinv = np.linalg.pinv(u[:, None] ** k)  # (p+1, window)
     fac = np.array([math.factorial(j) / math.factorial(j - deriv) if j >= deriv else 0.0 for j in k])
     s = (np.asarray(at, dtype=np.float64) - c) / scale
-    return (fac * s[:, None] ** np.maximum(k - deriv, 0)) @ pinv / (delta * scale) ** deriv
+    out = (fac * s[:, None] ** np.maximum(k - deriv, 0)) @ pinv / (delta * scale) ** deriv
+    out.setflags(write=False)
+    return out
 
 
 def savgol_filter(x, window_length: int, polyorder: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
-    """Savitzky-Golay filter of a 1-D signal, equal to scipy's ``mode="interp"``.
+    """Savitzky-Golay filter along the last axis, equal to scipy's ``mode="interp"``.
 
     Interior samples: the window's least-squares polynomial evaluated at the
     window centre (for an even window, as scipy/ndimage: the window starts
@@ -65,40 +72,41 @@ def savgol_filter(x, window_length: int, polyorder: int, deriv: int = 0, delta: 
     polynomial fitted to the first / last ``window_length`` samples.
 
     Args:
-      x: (n,) signal.
+      x: (..., n) signals (any leading batch shape, e.g. (chunks, n)).
       window_length: 1 <= window_length <= n.
       polyorder: < window_length.
       deriv: derivative order (0 = smoothing).
       delta: sample spacing for derivatives (units of x per unit of time).
 
     Returns:
-      (n,) float64.
+      (..., n) float64.
     """
     y = np.asarray(x, dtype=np.float64)
-    if y.ndim != 1:
-        raise ValueError(f"savgol_filter: x must be 1-D, got shape {y.shape}")
-    n, w = len(y), int(window_length)
+    if y.ndim < 1:
+        raise ValueError(f"savgol_filter: x must have a time axis, got shape {y.shape}")
+    n, w = y.shape[-1], int(window_length)
     if not 1 <= w <= n:
         raise ValueError(f"savgol_filter: window_length must be in 1..len(x) = {n} (mode interp), got {w}")
     if not 0 <= polyorder < w:
         raise ValueError(f"savgol_filter: polyorder must be in 0..window_length-1 = {w - 1}, got {polyorder}")
     h = w // 2
-    out = np.empty(n)
+    out = np.empty(y.shape)
     if n > 2 * h:
         first = 0 if w % 2 else 1  # window start offset of output h
-        centre = _fit_weights(w, polyorder, np.array([h if w % 2 else h - 0.5]), deriv, delta)[0]
-        out[h : n - h] = sliding_window_view(y, w)[first : first + n - 2 * h] @ centre
+        centre = _fit_weights(w, polyorder, (h if w % 2 else h - 0.5,), deriv, delta)[0]
+        out[..., h : n - h] = sliding_window_view(y, w, axis=-1)[..., first : first + n - 2 * h, :] @ centre
     if h:
-        out[:h] = _fit_weights(w, polyorder, np.arange(h), deriv, delta) @ y[:w]
-        out[n - h :] = _fit_weights(w, polyorder, np.arange(w - h, w), deriv, delta) @ y[n - w :]
+        out[..., :h] = y[..., :w] @ _fit_weights(w, polyorder, tuple(range(h)), deriv, delta).T
+        out[..., n - h :] = y[..., n - w :] @ _fit_weights(w, polyorder, tuple(range(w - h, w)), deriv, delta).T
     return out
 
 
 def _phase_unwrap(a: np.ndarray) -> np.ndarray:
-    """B2D's ``_phase_unwrap`` (applied there to the yaw *rate*): remove 2*pi
-    jumps between successive samples (numpy's round-half-even, as B2D)."""
+    """B2D's ``_phase_unwrap`` along the last axis (applied there to the yaw
+    *rate*): remove 2*pi jumps between successive samples (numpy's
+    round-half-even, as B2D)."""
     adj = np.zeros_like(a)
-    adj[1:] = np.cumsum(np.round(np.diff(a) / (2.0 * np.pi)))
+    adj[..., 1:] = np.cumsum(np.round(np.diff(a, axis=-1) / (2.0 * np.pi)), axis=-1)
     return a - 2.0 * np.pi * adj
 
 
@@ -107,6 +115,35 @@ def _xy(name: str, a, n: int | None) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] < 2 or (n is not None and len(arr) != n):
         raise ValueError(f"b2d comfort: {name} must have shape (n, 2) or (n, 3) with n = {n}, got {arr.shape}")
     return arr[:, :2]
+
+
+def _signals(a, f, r, wz, delta_s: float) -> dict[str, np.ndarray]:
+    """``b2d_comfort_signals`` on a batch of chunks: ``a, f, r`` (..., n, 2),
+    ``wz`` (..., n); returns (..., n) arrays."""
+    n = wz.shape[-1]
+    w = min(B2D_WINDOW, n)
+    if not B2D_POLYORDER < w:
+        raise ValueError(f"b2d comfort: needs >= {B2D_POLYORDER + 1} frames (SG order {B2D_POLYORDER}), got {n}")
+
+    def sg(x, deriv=0):
+        return savgol_filter(x, w, B2D_POLYORDER, deriv=deriv, delta=delta_s)
+
+    yaw = sg(_phase_unwrap(wz))
+    lon = sg((a * f).sum(-1))
+    mag = sg(np.hypot(a[..., 0], a[..., 1]))
+    return {
+        "lon_acc": lon,
+        "lat_acc": sg((a * r).sum(-1)),
+        "magnitude_jerk": sg(mag, deriv=1),
+        "lon_jerk": sg(lon, deriv=1),
+        "yaw_acc": yaw,
+        "yaw_rate": yaw,
+    }
+
+
+def _checks(sig: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """{bound name: (...) bool} every frame of the chunk strictly inside (NaN fails)."""
+    return {k: np.all((sig[k] > lo) & (sig[k] < hi), axis=-1) for k, lo, hi in B2D_BOUNDS}
 
 
 def b2d_comfort_signals(accel_xy, forward_xy, right_xy, yaw_rate, *,
@@ -131,27 +168,8 @@ def b2d_comfort_signals(accel_xy, forward_xy, right_xy, yaw_rate, *,
     """
     wz = np.asarray(yaw_rate, dtype=np.float64).reshape(-1)
     n = len(wz)
-    a = _xy("accel_xy", accel_xy, n)
-    f = _xy("forward_xy", forward_xy, n)
-    r = _xy("right_xy", right_xy, n)
-    w = min(B2D_WINDOW, n)
-    if not B2D_POLYORDER < w:
-        raise ValueError(f"b2d comfort: needs >= {B2D_POLYORDER + 1} frames (SG order {B2D_POLYORDER}), got {n}")
-
-    def sg(x, deriv=0):
-        return savgol_filter(x, w, B2D_POLYORDER, deriv=deriv, delta=delta_s)
-
-    yaw = sg(_phase_unwrap(wz))
-    lon = sg((a * f).sum(-1))
-    mag = sg(np.hypot(a[:, 0], a[:, 1]))
-    return {
-        "lon_acc": lon,
-        "lat_acc": sg((a * r).sum(-1)),
-        "magnitude_jerk": sg(mag, deriv=1),
-        "lon_jerk": sg(lon, deriv=1),
-        "yaw_acc": yaw,
-        "yaw_rate": yaw,
-    }
+    a, f, r = (_xy(k, v, n) for k, v in (("accel_xy", accel_xy), ("forward_xy", forward_xy), ("right_xy", right_xy)))
+    return _signals(a, f, r, wz, delta_s)
 
 
 def b2d_comfort_checks(accel_xy, forward_xy, right_xy, yaw_rate, *, delta_s: float = B2D_DELTA_S) -> dict[str, bool]:
@@ -163,7 +181,7 @@ def b2d_comfort_checks(accel_xy, forward_xy, right_xy, yaw_rate, *, delta_s: flo
       {signal name: bool}; the chunk passes iff all are True (NaN fails).
     """
     sig = b2d_comfort_signals(accel_xy, forward_xy, right_xy, yaw_rate, delta_s=delta_s)
-    return {k: bool(np.all((sig[k] > lo) & (sig[k] < hi))) for k, lo, hi in B2D_BOUNDS}
+    return {k: bool(v) for k, v in _checks(sig).items()}
 
 
 def b2d_route_smoothness(accel_xy, forward_xy, right_xy, yaw_rate, *, chunk: int = B2D_CHUNK,
@@ -173,6 +191,7 @@ def b2d_route_smoothness(accel_xy, forward_xy, right_xy, yaw_rate, *, chunk: int
     Routes with <= ``chunk`` frames are judged whole (1.0 or 0.0); longer ones
     are cut into chunks of ``chunk`` frames, a trailing partial chunk is
     dropped, and the value is the fraction of chunks passing every bound.
+    All chunks are filtered at once (one batched Savitzky-Golay pass).
 
     Args:
       accel_xy, forward_xy, right_xy: (n, 2|3), see ``b2d_comfort_signals``.
@@ -186,12 +205,11 @@ def b2d_route_smoothness(accel_xy, forward_xy, right_xy, yaw_rate, *, chunk: int
     wz = np.asarray(yaw_rate, dtype=np.float64).reshape(-1)
     n = len(wz)
     a, f, r = (_xy(k, v, n) for k, v in (("accel_xy", accel_xy), ("forward_xy", forward_xy), ("right_xy", right_xy)))
-    if n <= chunk:
-        return 1.0 if all(b2d_comfort_checks(a, f, r, wz, delta_s=delta_s).values()) else 0.0
-    starts = range(0, n - chunk + 1, chunk)
-    passed = [all(b2d_comfort_checks(a[s : s + chunk], f[s : s + chunk], r[s : s + chunk], wz[s : s + chunk],
-                                     delta_s=delta_s).values()) for s in starts]
-    return sum(passed) / len(passed)
+    m = n if n <= chunk else (n // chunk) * chunk
+    c = 1 if n <= chunk else n // chunk
+    cut = lambda x: x[:m].reshape((c, m // c) + x.shape[1:])  # noqa: E731 - (chunks, frames, ...)
+    passed = np.logical_and.reduce(list(_checks(_signals(cut(a), cut(f), cut(r), cut(wz), delta_s)).values()))
+    return float(passed.mean())
 
 
 def b2d_smoothness(route_values: Sequence[float]) -> float:

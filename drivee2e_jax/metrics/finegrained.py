@@ -1,8 +1,9 @@
 """Fine-grained per-episode columns from a simulated episode log (host side).
 
-``episode_columns`` turns one episode's ``StepLog`` (numpy, ``(T, ...)``,
-only the steps where the episode was ``active`` are used) into the columns a
-results row carries besides the leaderboard scores:
+``batch_columns`` turns a batch of episodes' ``StepLog`` (numpy,
+``(B, T, ...)``, only the steps where an episode was ``active`` are used)
+into the columns a results row carries besides the leaderboard scores
+(``episode_columns`` does one episode):
 
 * Behavior Metrics (``behavior.episode_behavior``, the paper's definitions by
   default, the tool code's with ``definition="code"``): lane-centre
@@ -71,7 +72,7 @@ def episode_columns(
     min_speed_pct=(),
     definition: Literal["paper", "code"] = "paper",
 ) -> dict[str, float]:
-    """The fine-grained columns of one episode.
+    """The fine-grained columns of one episode (``batch_columns`` with B = 1).
 
     Args:
       log: one episode's ``sim.StepLog`` as numpy arrays with a leading time
@@ -83,30 +84,143 @@ def episode_columns(
     Returns: ``{column: value}`` for every name in ``COLUMNS`` (floats; NaN
     where undefined, e.g. lane deviation when no aligned lane was ever near).
     """
-    act = np.flatnonzero(np.asarray(log.active))
-    if len(act) == 0:
-        return {c: math.nan for c in COLUMNS}
-    xy = np.asarray(log.xy)[act].astype(np.float64)
-    yaw = np.asarray(log.yaw)[act].astype(np.float64)
-    speed = np.asarray(log.speed)[act].astype(np.float64)
-    accel = np.asarray(log.accel)[act].astype(np.float64)
-    offset = np.asarray(log.facts.lane_offset)[act].astype(np.float64)
-    front = np.asarray(log.facts.front_distance)[act].astype(np.float64)
-    collisions = np.flatnonzero(np.asarray(log.events.collision)[act])
-    invasions = _distinct_crossings(np.flatnonzero(np.asarray(log.facts.lane_invasion)[act]), dt_s)
-    # Steps with no aligned lane in reach have no lane centre: excluded below.
-    finite = np.isfinite(offset)
-    bm = behavior.episode_behavior(
-        xy, speed, dt_s, np.where(finite, offset, 0.0), front, collisions, invasions,
-        route_length_m, route_completion_pct, definition=definition,
-    )
-    out = {c: float(bm[c]) for c in BM_COLUMNS}
-    out["position_deviation_mean_m"] = float(offset[finite].mean()) if finite.any() else math.nan
-    out["jerk_lon_mean_mps3"] = float(np.abs(np.diff(accel)).mean() / dt_s) if len(accel) > 1 else 0.0
-    out["smoothness_pct"] = _smoothness_pct(xy, yaw, speed, dt_s)
-    kept = [float(v) for v in min_speed_pct if not float(v) > EFFICIENCY_MAX_PCT]
-    out["efficiency_pct"] = float(np.mean(kept)) if kept else math.nan
+    ms = np.asarray(min_speed_pct, dtype=np.float64).reshape(1, -1)
+    return batch_columns(
+        _map(lambda a: np.asarray(a)[None], log),
+        route_length_m=np.array([route_length_m]),
+        route_completion_pct=np.array([route_completion_pct]),
+        dt_s=dt_s,
+        min_speed_pct=ms,
+        min_speed_valid=np.ones(ms.shape, bool),
+        definition=definition,
+    )[0]
+
+
+def batch_columns(
+    logs,
+    *,
+    route_length_m,
+    route_completion_pct,
+    dt_s: float,
+    min_speed_pct,
+    min_speed_valid,
+    definition: Literal["paper", "code"] = "paper",
+) -> list[dict[str, float]]:
+    """The fine-grained columns of a batch of episodes.
+
+    The reductions over time are numpy array operations over the whole batch
+    (one batched Savitzky-Golay pass for every smoothness chunk of every
+    episode); only the event lists of Behavior Metrics are per episode.
+
+    Args:
+      logs: ``sim.StepLog`` as numpy arrays with leading (B, T) axes; an
+        episode's ``active`` steps are a prefix (it runs until it is done).
+      route_length_m: (B,) m.  route_completion_pct: (B,) %.  dt_s: step, s.
+      min_speed_pct: (B, Q) min-speed checkpoint values, %; min_speed_valid (B, Q) bool.
+      definition: Behavior Metrics definitions, "paper" (default) or "code".
+
+    Returns: one ``{column: value}`` dict per episode (``COLUMNS``; NaN where undefined).
+    """
+    active = np.asarray(logs.active, bool)
+    n_act = active.sum(axis=1)
+    xy = np.asarray(logs.xy, np.float64)
+    yaw = np.asarray(logs.yaw, np.float64)
+    speed = np.asarray(logs.speed, np.float64)
+    accel = np.asarray(logs.accel, np.float64)
+    offset = np.abs(np.asarray(logs.facts.lane_offset, np.float64))
+    front = np.asarray(logs.facts.front_distance, np.float64)
+    collision = np.asarray(logs.events.collision, bool)
+    invasion = np.asarray(logs.facts.lane_invasion, bool)
+
+    smooth = smoothness_pct(xy, yaw, speed, n_act, dt_s)
+    # Steps with no aligned lane in reach have no lane centre: left out.
+    lane_ok = active & np.isfinite(offset)
+    n_lane = lane_ok.sum(axis=1)
+    deviation = np.where(lane_ok, offset, 0.0).sum(axis=1) / np.maximum(n_lane, 1)
+    jerk_steps = np.abs(np.diff(accel, axis=1)) * (active[:, 1:])
+    jerk = jerk_steps.sum(axis=1) / np.maximum(n_act - 1, 1) / dt_s
+    ms = np.where(np.asarray(min_speed_valid) & ~(np.asarray(min_speed_pct) > EFFICIENCY_MAX_PCT),
+                  np.asarray(min_speed_pct, np.float64), np.nan)
+
+    out = []
+    for i, n in enumerate(n_act):
+        if n == 0:
+            out.append({c: math.nan for c in COLUMNS})
+            continue
+        invasions = _distinct_crossings(np.flatnonzero(invasion[i, :n]), dt_s)
+        bm = behavior.episode_behavior(
+            xy[i, :n], speed[i, :n], dt_s, np.where(lane_ok[i, :n], offset[i, :n], 0.0), front[i, :n],
+            np.flatnonzero(collision[i, :n]), invasions, float(route_length_m[i]), float(route_completion_pct[i]),
+            definition=definition,
+        )
+        row = {c: float(bm[c]) for c in BM_COLUMNS}
+        row["position_deviation_mean_m"] = float(deviation[i]) if n_lane[i] else math.nan
+        row["jerk_lon_mean_mps3"] = float(jerk[i])
+        row["smoothness_pct"] = float(smooth[i])
+        kept = ms[i][np.isfinite(ms[i])]
+        row["efficiency_pct"] = float(kept.mean()) if len(kept) else math.nan
+        out.append(row)
     return out
+
+
+def smoothness_pct(xy, yaw, speed, n_active, dt_s: float, chunk: int = comfort.B2D_CHUNK) -> np.ndarray:
+    """Bench2Drive smoothness of a batch of episodes, % of passing chunks.
+
+    Each episode's first ``n_active`` frames are turned into B2D's per-frame
+    signals as ``comfort.b2d_frames_from_episode`` does (``np.gradient``:
+    central differences inside, one-sided at both ends of the active prefix)
+    and judged as ``comfort.b2d_route_smoothness``: every complete
+    ``chunk``-frame chunk of every episode goes through one batched
+    Savitzky-Golay pass; an episode of <= ``chunk`` frames is judged whole.
+
+    Args:
+      xy: (B, T, 2) m (unused by B2D; kept for the signature's symmetry).
+      yaw: (B, T) rad.  speed: (B, T) m/s.  n_active: (B,) int frames.
+
+    Returns: (B,) float64 %, NaN for episodes of fewer than 3 frames.
+    """
+    del xy
+    b, t = yaw.shape
+    n = np.asarray(n_active, np.int64)
+    rows = np.arange(b)
+    fwd = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)  # (B, T, 2)
+    vel = speed[..., None] * fwd
+    uyaw = np.unwrap(yaw, axis=1)
+    if t > 1:
+        accel = np.gradient(vel, dt_s, axis=1)
+        rate = np.gradient(uyaw, dt_s, axis=1)
+        # np.gradient is one-sided at the array's end; an episode's last
+        # active frame needs the same one-sided difference.
+        last, prev = np.clip(n - 1, 0, t - 1), np.clip(n - 2, 0, t - 1)
+        accel[rows, last] = (vel[rows, last] - vel[rows, prev]) / dt_s
+        rate[rows, last] = (uyaw[rows, last] - uyaw[rows, prev]) / dt_s
+    else:
+        accel, rate = np.zeros_like(vel), np.zeros_like(uyaw)
+    right = np.stack([fwd[..., 1], -fwd[..., 0]], axis=-1)
+    out = np.full(b, np.nan)
+
+    long = n > chunk
+    if long.any():
+        c = t // chunk
+        cut = lambda x: x[long, : c * chunk].reshape((int(long.sum()), c, chunk) + x.shape[2:])  # noqa: E731
+        ok = np.arange(c)[None, :] < (n[long] // chunk)[:, None]  # (B_long, c) complete chunks
+        sig = comfort._signals(cut(accel)[ok], cut(fwd)[ok], cut(right)[ok], cut(rate)[ok], dt_s)
+        passed = np.logical_and.reduce(list(comfort._checks(sig).values()))  # (chunks,)
+        per_episode = np.zeros(ok.shape)
+        per_episode[ok] = passed
+        out[long] = 100.0 * per_episode.sum(axis=1) / ok.sum(axis=1)
+    for i in np.flatnonzero((n >= 3) & ~long):  # short episodes: judged whole, own SG window
+        m = n[i]
+        out[i] = 100.0 * comfort.b2d_route_smoothness(accel[i, :m], fwd[i, :m], right[i, :m], rate[i, :m],
+                                                      chunk=chunk, delta_s=dt_s)
+    return out
+
+
+def _map(fn, tree):
+    """``fn`` on every array leaf of a log (namespace / struct dataclass)."""
+    import jax
+
+    return jax.tree_util.tree_map(fn, tree)
 
 
 def _distinct_crossings(steps: np.ndarray, dt_s: float) -> np.ndarray:
@@ -116,12 +230,3 @@ def _distinct_crossings(steps: np.ndarray, dt_s: float) -> np.ndarray:
         return steps
     gap = np.diff(steps, prepend=-np.inf) * dt_s
     return steps[gap > INVASION_MERGE_S]
-
-
-def _smoothness_pct(xy, yaw, speed, dt_s) -> float:
-    """Bench2Drive smoothness of the episode, % of passing chunks (NaN if < 3 steps)."""
-    if len(xy) < 3:
-        return math.nan
-    f = comfort.b2d_frames_from_episode(xy, yaw, speed, dt_s)
-    frac = comfort.b2d_route_smoothness(f["accel_xy"], f["forward_xy"], f["right_xy"], f["yaw_rate"], delta_s=dt_s)
-    return 100.0 * frac

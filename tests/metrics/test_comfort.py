@@ -264,3 +264,12 @@ def test_constant_turn_yaw_rate_across_the_pi_seam():
 def test_frames_reject_bad_shapes():
     with pytest.raises(ValueError, match="b2d_frames_from_episode"):
         b2d_frames_from_episode(np.zeros((5, 2)), np.zeros(4), np.zeros(5), 0.1)
+
+
+def test_savgol_filters_every_row_of_a_batch_like_one_signal():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(5, 20))
+    for w, deriv in ((7, 0), (7, 1), (6, 1), (3, 0)):
+        batched = savgol_filter(x, w, 2, deriv, 0.1)
+        rows = np.stack([savgol_filter(row, w, 2, deriv, 0.1) for row in x])
+        np.testing.assert_allclose(batched, rows, rtol=0, atol=1e-12)

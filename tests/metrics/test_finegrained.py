@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
+from collections import namedtuple
 
 import numpy as np
 import pytest
@@ -12,21 +12,26 @@ from drivee2e_jax.metrics.finegrained import COLUMNS, episode_columns
 
 DT = 0.1
 
+# Pytrees shaped like ``sim.StepLog`` (the fields the columns read).
+Log = namedtuple("Log", "xy yaw speed accel active facts events")
+Facts = namedtuple("Facts", "lane_offset front_distance lane_invasion")
+Events = namedtuple("Events", "collision")
+
 
 def fake_log(t=60, speed=10.0, accel=None, offset=0.2, front=np.inf, invasions=(), collisions=(), active=None):
     x = speed * DT * np.arange(1, t + 1)
-    return SimpleNamespace(
+    return Log(
         xy=np.stack([x, np.zeros(t)], 1),
         yaw=np.zeros(t),
         speed=np.full(t, speed),
         accel=np.zeros(t) if accel is None else np.asarray(accel, float),
         active=np.ones(t, bool) if active is None else np.asarray(active),
-        facts=SimpleNamespace(
+        facts=Facts(
             lane_offset=np.broadcast_to(np.asarray(offset, float), (t,)).copy(),
             front_distance=np.broadcast_to(np.asarray(front, float), (t,)).copy(),
             lane_invasion=np.isin(np.arange(t), invasions),
         ),
-        events=SimpleNamespace(collision=np.isin(np.arange(t), collisions)),
+        events=Events(collision=np.isin(np.arange(t), collisions)),
     )
 
 
@@ -75,3 +80,50 @@ def test_only_active_steps_count_and_an_empty_episode_is_all_nan():
 
 def test_efficiency_is_the_mean_checkpoint_ratio_ignoring_over_1000():
     assert cols(fake_log(), min_speed_pct=[80.0, 120.0, 5000.0])["efficiency_pct"] == pytest.approx(100.0)
+
+
+def test_batched_smoothness_equals_the_per_episode_b2d_path():
+    """Episodes of different active lengths (prefixes of T) in one batch give
+    what B2D's per-route functions give on each episode's own frames."""
+    from drivee2e_jax.metrics import comfort
+    from drivee2e_jax.metrics.finegrained import smoothness_pct
+
+    rng = np.random.default_rng(0)
+    b, t = 7, 95
+    yaw = np.cumsum(rng.normal(0, 0.02, (b, t)), axis=1) + 3.1  # crosses +-pi for some
+    speed = np.clip(8 + np.cumsum(rng.normal(0, 0.15, (b, t)), axis=1), 0, None)
+    speed[3, 40:50] += 6.0  # a harsh chunk
+    n = np.array([95, 80, 61, 41, 20, 7, 2])
+    got = smoothness_pct(np.zeros((b, t, 2)), yaw, speed, n, DT)
+    for i in range(b):
+        if n[i] < 3:
+            assert math.isnan(got[i])
+            continue
+        f = comfort.b2d_frames_from_episode(np.zeros((n[i], 2)), yaw[i, : n[i]], speed[i, : n[i]], DT)
+        want = 100 * comfort.b2d_route_smoothness(f["accel_xy"], f["forward_xy"], f["right_xy"], f["yaw_rate"])
+        assert got[i] == pytest.approx(want), i
+    assert got[3] < 100.0
+
+
+def test_batch_columns_match_one_episode_at_a_time():
+    from drivee2e_jax.metrics.finegrained import batch_columns
+
+    logs = [fake_log(speed=s, offset=o, invasions=inv, active=np.arange(60) < n)
+            for s, o, inv, n in ((10.0, 0.2, (), 60), (5.0, 0.5, (3, 30), 45), (12.0, 0.1, (50,), 12))]
+    stacked = Log(*(np.stack(x) for x in zip(*[(lg.xy, lg.yaw, lg.speed, lg.accel, lg.active) for lg in logs])),
+                  facts=Facts(*(np.stack(x) for x in zip(*[lg.facts for lg in logs]))),
+                  events=Events(np.stack([lg.events.collision for lg in logs])))
+    ms = np.array([[50.0, 80.0], [2000.0, 40.0], [0.0, 0.0]])
+    mv = np.array([[True, True], [True, True], [False, False]])
+    rows = batch_columns(stacked, route_length_m=np.array([100.0, 80.0, 50.0]),
+                         route_completion_pct=np.array([60.0, 30.0, 10.0]), dt_s=DT,
+                         min_speed_pct=ms, min_speed_valid=mv)
+    for i, lg in enumerate(logs):
+        one = episode_columns(lg, route_length_m=[100.0, 80.0, 50.0][i], route_completion_pct=[60.0, 30.0, 10.0][i],
+                              dt_s=DT, min_speed_pct=ms[i][mv[i]])
+        assert rows[i].keys() == one.keys()
+        for k in one:
+            assert rows[i][k] == pytest.approx(one[k], nan_ok=True), (i, k)
+    assert rows[0]["efficiency_pct"] == pytest.approx(65.0)
+    assert rows[1]["efficiency_pct"] == pytest.approx(40.0)  # > 1000 % ignored, as B2D
+    assert math.isnan(rows[2]["efficiency_pct"])
