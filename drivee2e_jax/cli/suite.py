@@ -16,6 +16,24 @@ examples:
   drivee2e suite info twin15
   drivee2e suite info suites/twin15 --json
   drivee2e suite validate suites/twin15
+  drivee2e suite import argoverse2 data/av2/ --out suites/av2
+"""
+
+IMPORT_EPILOG = """\
+examples:
+  drivee2e suite import argoverse2 ../shared/data/argoverse2 --out suites/av2
+  drivee2e suite import scenarionet ../shared/data/nuscenes_scenarionet/*.pkl --out suites/nusc --split val
+  drivee2e suite import argoverse2 log_dir/ --out suites/av2_5s --window-s 5 --max-scenarios 10
+
+formats: argoverse2 (scenario_*.parquet with its log_map_archive_*.json, or a
+sensor-log folder with annotations.feather + city_SE3_egovehicle.feather +
+map/), scenarionet (sd_*.pkl, read with a restricted unpickler), lanelet2-csv,
+commonroad, opendrive. Each PATH is one recording (file or folder) or a folder
+searched for recordings. Tracks are resampled onto the 0.1 s grid (never across
+gaps); the recorded ego drives, or --ego names one, or one is chosen by the
+curation rules. Needs the import extra for Parquet/Feather:
+pip install 'drivee2e-jax[import]'. Check the result with
+`drivee2e suite validate DIR`.
 """
 
 GENERATE_EPILOG = """\
@@ -42,7 +60,12 @@ example:
   drivee2e suite validate suites/my_suite
 
 Prints every problem as `file: field: expected ...` and exits 1 if there is
-any; prints `OK: N scenarios, M maps` and exits 0 otherwise.
+any. Then runs the curation checks of recorded scenarios (track gaps, speed /
+acceleration / yaw-rate bounds per category, the ego route following the lanes,
+ego box overlaps; see drivee2e_jax/scenario/curation.py) and prints each finding
+as `warning: <scenario>: track <id> t=<s>: <check>: ...` on stderr: they fail
+the command (exit 1) only with --strict. Prints `OK: N scenarios, M maps`
+otherwise.
 """
 
 
@@ -83,7 +106,31 @@ def add_parser(subparsers) -> None:
         epilog=VALIDATE_EPILOG,
     )
     v.add_argument("folder", type=Path, help="suite folder")
+    v.add_argument("--strict", action="store_true", help="curation findings are errors (exit 1)")
+    v.add_argument("--no-curation", action="store_true", help="schema checks only")
     v.set_defaults(func=run_validate)
+
+    from drivee2e_jax.scenario.importers import FORMATS
+
+    m = common.add_command(
+        actions, "import", help="convert recorded traffic (Argoverse 2, ScenarioNet, ...) into a suite folder",
+        description="Import real recorded traffic into a suite folder: tracks resampled onto the log grid, the "
+                    "ego's logged path as its route, behaviour labels inferred, unusable tracks reported.",
+        epilog=IMPORT_EPILOG,
+    )
+    m.add_argument("format", choices=list(FORMATS), metavar="FORMAT", help=f"one of {', '.join(FORMATS)}")
+    m.add_argument("paths", nargs="+", type=Path, metavar="PATH", help="input files or folders")
+    m.add_argument("--out", type=Path, required=True, metavar="DIR", help="suite folder to write (new or empty)")
+    m.add_argument("--split", default="test", help="split of every imported scenario (default: test)")
+    m.add_argument("--ego", default=None, metavar="ID",
+                   help="source track id to use as ego (default: the recorded ego, else chosen automatically)")
+    m.add_argument("--max-scenarios", type=int, default=None, metavar="N", help="stop after N scenarios")
+    m.add_argument("--window-s", type=float, default=None, metavar="S",
+                   help="cut recordings into windows of S seconds (default: whole recordings)")
+    m.add_argument("--name", default=None, help="suite name (default: the folder name of --out)")
+    m.add_argument("--force", action="store_true", help="replace an existing suite folder at DIR")
+    m.add_argument("--verbose", "-v", action="store_true", help="print every skipped item and note")
+    m.set_defaults(func=run_import)
 
 
 def run_generate(args) -> int:
@@ -145,7 +192,7 @@ def run_info(args) -> int:
 
 
 def run_validate(args) -> int:
-    from drivee2e_jax.scenario.schema import validate_suite
+    from drivee2e_jax.scenario.schema import read_suite, validate_suite
 
     problems = validate_suite(args.folder, progress=True)
     if problems:
@@ -155,5 +202,80 @@ def run_validate(args) -> int:
         return common.EXIT_PROBLEMS
     head = json.loads((args.folder / "suite.json").read_text(encoding="utf-8"))
     num_maps = len(list((args.folder / "maps").glob("*.json")))
+    findings = []
+    if not args.no_curation:
+        from drivee2e_jax.scenario.curation import curate_suite
+
+        findings = curate_suite(read_suite(args.folder))
+        for f in findings:  # warnings go to stderr: stdout keeps the one-line verdict
+            print(f"warning: {f}", file=sys.stderr)
+    if findings:
+        by_check: dict[str, int] = {}
+        for f in findings:
+            by_check[f.check] = by_check.get(f.check, 0) + 1
+        summary = ", ".join(f"{v} {k}" for k, v in by_check.items())
+        print(f"{len(findings)} curation finding{'s' if len(findings) != 1 else ''} ({summary})"
+              + (" (--strict: failing)" if args.strict else ""), file=sys.stderr)
+        if args.strict:
+            return common.EXIT_PROBLEMS
     print(f"OK: {len(head['scenarios'])} scenarios, {num_maps} maps")
     return common.EXIT_OK
+
+
+def run_import(args) -> int:
+    from drivee2e_jax.scenario import importers
+    from drivee2e_jax.scenario.importers.common import ImportOptions, merge_results, write_result
+
+    out: Path = args.out
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
+        raise common.DriveE2EError(f"{out} exists and is not empty; expected a new or empty folder "
+                                   "(pass --force to replace a suite folder)")
+    for p in args.paths:
+        if not p.exists():
+            raise common.DriveE2EError(f"{p}: no such file or folder")
+    options = ImportOptions(split=args.split, ego=args.ego, max_scenarios=args.max_scenarios,
+                            window_s=args.window_s, name=args.name)
+    t0 = time.perf_counter()
+    importers.module(args.format)  # an unknown/unavailable format fails before any reading
+    results = []
+    count = 0
+    bar = common.progress(args.paths, desc=f"importing {args.format}", unit="input",
+                          disable=None if len(args.paths) > 1 else True)
+    for path in bar:
+        if options.max_scenarios is not None and count >= options.max_scenarios:
+            break
+        left = None if options.max_scenarios is None else options.max_scenarios - count
+        opts = ImportOptions(**{**options.__dict__, "max_scenarios": left})
+        r = importers.load(args.format, [path], opts)
+        count += len(r.scenarios)
+        results.append(r)
+    result = merge_results(results)
+    name = args.name or out.name
+    write_result(result, out, name=name, force=args.force)
+    _print_import_summary(result, out, time.perf_counter() - t0, verbose=args.verbose)
+    return common.EXIT_OK
+
+
+def _print_import_summary(result, out: Path, seconds: float, *, verbose: bool) -> None:
+    behaviours: dict[str, int] = {}
+    for s in result.scenarios:
+        behaviours[s.behavior] = behaviours.get(s.behavior, 0) + 1
+    tracks = sum(len(s.tracks) for s in result.scenarios)
+    used = {s.map_id for s in result.scenarios}
+    lines = [f"wrote {len(result.scenarios)} scenarios ({', '.join(f'{k} {v}' for k, v in sorted(behaviours.items()))}), "
+             f"{len(used)} maps, {tracks} tracks to {out} ({seconds:.1f} s)"]
+    if result.skipped:
+        reasons: dict[str, list[str]] = {}
+        for sk in result.skipped:
+            reasons.setdefault(sk.reason, []).append(sk.source)
+        lines.append(f"skipped {len(result.skipped)}:")
+        for reason, sources in sorted(reasons.items(), key=lambda x: (-len(x[1]), x[0])):
+            lines.append(f"  {len(sources):>5}  {reason}")
+            if verbose:
+                lines += [f"         {src}" for src in sources]
+    notes = result.notes if verbose else [n for n in result.notes if ": behaviour " not in n]
+    if notes:
+        lines.append("notes:")
+        lines += [f"  {n}" for n in notes]
+    lines.append(f"next: drivee2e suite validate {out}")
+    print("\n".join(lines))

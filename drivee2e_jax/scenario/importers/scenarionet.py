@@ -1,0 +1,390 @@
+"""ScenarioNet importer: ``sd_*.pkl`` scenario descriptions (nuScenes, Waymo, nuPlan conversions).
+
+A pickle can run arbitrary code when it is loaded, so files are read with
+:class:`SafeUnpickler`: it admits only plain containers and scalars and the
+numpy globals needed to rebuild arrays, dtypes and numpy scalars
+(:data:`ALLOWED_GLOBALS`), and refuses anything else with one line naming the
+file and the refused global. Nothing from metadrive or scenarionet is needed.
+
+Conversion:
+
+* time: ``metadata.ts`` (s) gives the sample times; they are resampled onto the
+  ``options.dt`` grid (a copy when they already are on it). A track exists
+  where ``state.valid`` is set; gaps are not interpolated across.
+* ego: ``metadata.sdc_id`` (the logging vehicle), or ``--ego``.
+* tracks: ``type`` VEHICLE / PEDESTRIAN / CYCLIST, refined by the original
+  nuScenes category in ``metadata.type`` where present (:data:`FINE_CATEGORIES`);
+  TRAFFIC_CONE / TRAFFIC_BARRIER become static obstacles (when they do not
+  move); other types are reported as Skipped. Sizes are the median of
+  ``length/width/height`` over valid steps. A vehicle whose width exceeds its
+  length has the two swapped (the nuScenes conversion writes the ego as
+  1.73 m long, 4.08 m wide) and a note says so.
+* the ego position is the nuScenes ``ego_pose`` (midpoint of the rear axle);
+  the written box centre is ``EGO_CENTER_OFFSET_M`` ahead of it (approximate,
+  for the Renault Zoe of the nuScenes fleet).
+* map: ``LANE_*`` features -> lanes (``polyline`` centreline, width = polygon
+  area / centreline length, clipped to 2-6 m; successors inferred from
+  geometry when the source has no ``exit_lanes``), ``ROAD_LINE_*`` ->
+  boundaries with markings, ``ROAD_EDGE_*`` -> ``road_edge`` boundaries,
+  ``CROSSWALK`` -> crosswalks; other feature types are counted in a note.
+* honesty about interpolation: nuScenes annotates at 2 Hz and ScenarioNet
+  interpolates linearly to 10 Hz. The importer measures the fraction of agent
+  samples that lie exactly on straight, evenly spaced segments (zero second
+  difference) and reports it in the notes and ``suite.json`` meta.
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.scenario.importers import common
+from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
+from drivee2e_jax.scenario.records import BoundaryRecord, LaneRecord, MapRecord
+
+__all__ = ["load", "safe_load", "SafeUnpickler", "ALLOWED_GLOBALS", "TYPE_CATEGORIES", "FINE_CATEGORIES",
+           "LINE_MARKINGS"]
+
+
+def _codecs_encode(obj: Any, encoding: str = "utf-8", errors: str = "strict") -> bytes:
+    """``_codecs.encode`` restricted to latin-1 (what numpy uses for array bytes under protocol 2)."""
+    if encoding not in ("latin1", "latin-1", "iso-8859-1"):
+        raise pickle.UnpicklingError(f"refused _codecs.encode with encoding {encoding!r}")
+    import codecs
+
+    return codecs.encode(obj, encoding, errors)
+
+
+def _numpy_globals() -> dict[tuple[str, str], Any]:
+    try:  # numpy >= 2 (numpy 1.x pickles name numpy.core, 2.x numpy._core: admit both)
+        from numpy._core import multiarray, numeric
+    except ImportError:  # numpy 1.x
+        from numpy.core import multiarray, numeric
+
+    out = {}
+    for mod in ("numpy.core", "numpy._core"):
+        out[(f"{mod}.multiarray", "_reconstruct")] = multiarray._reconstruct
+        out[(f"{mod}.multiarray", "scalar")] = multiarray.scalar
+        # pickle protocol 5 rebuilds arrays from their bytes with _frombuffer(buffer, dtype, shape, order)
+        out[(f"{mod}.numeric", "_frombuffer")] = numeric._frombuffer
+    out[("numpy", "ndarray")] = np.ndarray
+    out[("numpy", "dtype")] = np.dtype
+    for name in ("float64", "float32", "float16", "int64", "int32", "int16", "int8", "uint8", "uint16",
+                 "uint32", "uint64", "bool_", "str_", "bytes_"):
+        out[("numpy", name)] = getattr(np, name)
+    return out
+
+
+def _allowed() -> dict[tuple[str, str], Any]:
+    import collections
+
+    out = _numpy_globals()
+    for name, obj in (("set", set), ("frozenset", frozenset), ("list", list), ("dict", dict), ("tuple", tuple),
+                      ("complex", complex), ("bytearray", bytearray)):
+        out[("builtins", name)] = obj
+        out[("__builtin__", name)] = obj
+    out[("collections", "OrderedDict")] = collections.OrderedDict
+    out[("_codecs", "encode")] = _codecs_encode
+    return out
+
+
+#: (module, name) -> object: the only globals a ScenarioNet pickle may reference.
+ALLOWED_GLOBALS: dict[tuple[str, str], Any] = {}
+
+
+class SafeUnpickler(pickle.Unpickler):
+    """An unpickler that admits only ``ALLOWED_GLOBALS`` (containers, scalars, numpy arrays)."""
+
+    def __init__(self, file, *, source: str = "<pickle>"):
+        super().__init__(file)
+        self.source = source
+
+    def find_class(self, module: str, name: str) -> Any:
+        if not ALLOWED_GLOBALS:
+            ALLOWED_GLOBALS.update(_allowed())
+        obj = ALLOWED_GLOBALS.get((module, name))
+        if obj is None:
+            raise DriveE2EError(f"{self.source}: refused to load global {module}.{name}; a ScenarioNet pickle "
+                                "may hold only dicts, lists, numbers, strings and numpy arrays")
+        return obj
+
+
+def safe_load(path: Path) -> Any:
+    """Unpickle ``path`` with :class:`SafeUnpickler` (one-line DriveE2EError on anything else)."""
+    try:
+        with open(path, "rb") as f:
+            return SafeUnpickler(f, source=str(path)).load()
+    except DriveE2EError:
+        raise
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError) as e:
+        raise DriveE2EError(f"{path}: not a readable pickle ({type(e).__name__}: "
+                            f"{' '.join(str(e).split())[:100]})") from None
+
+
+#: ScenarioNet/MetaDrive object ``type`` -> CATEGORIES (None: known, not a road user).
+TYPE_CATEGORIES: dict[str, str | None] = {
+    "VEHICLE": "car", "PEDESTRIAN": "pedestrian", "CYCLIST": "cyclist", "TRAFFIC_CONE": None,
+    "TRAFFIC_BARRIER": None, "TRAFFIC_OBJECT": None, "OTHER": None, "UNSET": None,
+}
+#: Types written as static obstacles (when they do not move), with their kind.
+STATIC_KINDS = {"TRAFFIC_CONE": "cone", "TRAFFIC_BARRIER": "barrier", "TRAFFIC_OBJECT": "object"}
+#: Original nuScenes category (``metadata.type``) prefix -> a finer CATEGORIES name.
+FINE_CATEGORIES = (
+    ("vehicle.bus", "bus"), ("vehicle.truck", "truck"), ("vehicle.construction", "truck"),
+    ("vehicle.trailer", "truck"), ("vehicle.emergency.police", "car"), ("vehicle.emergency.ambulance", "van"),
+    ("vehicle.motorcycle", "motorcycle"), ("vehicle.bicycle", "cyclist"), ("vehicle.car", "car"),
+)
+#: Map feature ``type`` -> MARKINGS for boundaries.
+LINE_MARKINGS = {
+    "ROAD_LINE_BROKEN_SINGLE_WHITE": "dashed", "ROAD_LINE_BROKEN_SINGLE_YELLOW": "dashed",
+    "ROAD_LINE_BROKEN_DOUBLE_YELLOW": "dashed", "ROAD_LINE_SOLID_SINGLE_WHITE": "solid",
+    "ROAD_LINE_SOLID_SINGLE_YELLOW": "solid", "ROAD_LINE_SOLID_DOUBLE_WHITE": "double_solid",
+    "ROAD_LINE_SOLID_DOUBLE_YELLOW": "double_solid", "ROAD_LINE_PASSING_DOUBLE_YELLOW": "double_solid",
+    "ROAD_LINE_UNKNOWN": "none", "ROAD_EDGE_BOUNDARY": "road_edge", "ROAD_EDGE_MEDIAN": "road_edge",
+    "ROAD_EDGE_UNKNOWN": "road_edge", "ROAD_EDGE_SIDEWALK": "road_edge",
+}
+LANE_KINDS = {"LANE_SURFACE_STREET": "driving", "LANE_FREEWAY": "driving", "LANE_UNKNOWN": "driving",
+              "LANE_SURFACE_UNSTRUCTURE": "driving", "LANE_BIKE_LANE": "bike"}
+#: nuScenes ego: box centre ahead of the rear-axle pose, m (approximate).
+EGO_CENTER_OFFSET_M = 1.3
+MAP_RADIUS_M = 100.0
+LICENSE = {"nuscenes": "nuScenes: CC BY-NC-SA 4.0 (cite Caesar et al., nuScenes, CVPR 2020; nuScenes terms of use)"}
+
+
+def _get(obj: Any, key: str, where: str, kind: type | tuple = dict) -> Any:
+    if not isinstance(obj, dict) or key not in obj:
+        raise DriveE2EError(f"{where}: missing field {key!r}")
+    v = obj[key]
+    if kind is not None and not isinstance(v, kind):
+        raise DriveE2EError(f"{where}.{key}: expected {getattr(kind, '__name__', kind)}, got {type(v).__name__}")
+    return v
+
+
+def _array(v: Any, where: str, cols: int | None = None) -> np.ndarray:
+    try:
+        a = np.asarray(v, np.float64)
+    except (TypeError, ValueError):
+        raise DriveE2EError(f"{where}: expected an array of numbers") from None
+    if cols is not None and (a.ndim != 2 or a.shape[1] < cols):
+        raise DriveE2EError(f"{where}: expected an (n, >={cols}) array, got shape {a.shape}")
+    return a
+
+
+# --------------------------------------------------------------------------
+# Map
+# --------------------------------------------------------------------------
+
+
+def _polygon_area(p: np.ndarray) -> float:
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
+
+
+def _map(features: dict, map_id: str, source: str, notes: list[str]) -> MapRecord:
+    lanes, boundaries, crosswalks, other = [], [], [], {}
+    has_links = False
+    for i, (fid, feat) in enumerate(sorted(features.items(), key=lambda x: str(x[0]))):
+        where = f"{source}: map_features[{fid!r}]"
+        typ = str(_get(feat, "type", where, None))
+        if typ in LANE_KINDS:
+            c = _array(_get(feat, "polyline", where, None), f"{where}.polyline", 2)[:, :2]
+            if len(c) < 2 or common.polyline_length(c) < 0.1:
+                other[f"degenerate {typ}"] = other.get(f"degenerate {typ}", 0) + 1
+                continue
+            width = 3.5
+            if feat.get("polygon") is not None and len(feat["polygon"]) >= 3:
+                poly = _array(feat["polygon"], f"{where}.polygon", 2)[:, :2]
+                width = float(np.clip(_polygon_area(poly) / common.polyline_length(c), 2.0, 6.0))
+            succ = [int(s) for s in feat.get("exit_lanes", []) if str(s).lstrip("-").isdigit()]
+            has_links |= bool(succ)
+            lanes.append(LaneRecord(id=i, centerline=c, width=width, type=LANE_KINDS[typ], successors=succ,
+                                    left_marking="none", right_marking="none"))
+        elif typ in LINE_MARKINGS:
+            p = _array(_get(feat, "polyline", where, None), f"{where}.polyline", 2)[:, :2]
+            if len(p) >= 2:
+                boundaries.append(BoundaryRecord(points=p, marking=LINE_MARKINGS[typ]))
+        elif typ == "CROSSWALK":
+            p = _array(_get(feat, "polygon", where, None), f"{where}.polygon", 2)[:, :2]
+            if len(p) >= 3:
+                crosswalks.append(p)
+        else:
+            other[typ] = other.get(typ, 0) + 1
+    if other:
+        notes.append(f"{source}: map features not used: "
+                     + ", ".join(f"{k} x{v}" for k, v in sorted(other.items())))
+    if not has_links:
+        common.infer_successors(lanes)
+    else:  # exit_lanes name feature ids; we number lanes by position, so drop the unresolvable ones
+        for ln in lanes:
+            ln.successors = []
+        common.infer_successors(lanes)
+    return MapRecord(map_id=map_id, lanes=lanes, boundaries=boundaries, crosswalks=crosswalks,
+                     meta={"source": "scenarionet"})
+
+
+# --------------------------------------------------------------------------
+# Tracks
+# --------------------------------------------------------------------------
+
+
+def _category(track: dict, where: str) -> tuple[str | None, Skipped | None, str]:
+    typ = str(track.get("type"))
+    cat, skip = common.map_category(typ, TYPE_CATEGORIES, where)
+    fine = str((track.get("metadata") or {}).get("type", ""))
+    if cat in ("car", "cyclist"):
+        for prefix, c in FINE_CATEGORIES:
+            if fine.startswith(prefix):
+                cat = c
+                break
+    return cat, skip, typ
+
+
+def _interpolated_fraction(tracks: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Fraction of moving agent samples with zero second difference (on straight evenly spaced runs)."""
+    hits = total = 0
+    for t, xy in tracks:
+        if len(t) < 3:
+            continue
+        ok = np.isclose(np.diff(t)[:-1], np.diff(t)[1:])
+        step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+        moving = (step[:-1] > 0.01) & (step[1:] > 0.01) & ok
+        sd = np.linalg.norm(xy[:-2] - 2 * xy[1:-1] + xy[2:], axis=1)
+        hits += int(np.sum(moving & (sd < 1e-6)))
+        total += int(np.sum(moving))
+    return hits / total if total else 0.0
+
+
+def _one(path: Path, options: ImportOptions, limit: int | None) -> ImportResult:
+    data = safe_load(path)
+    src = path.name
+    if not isinstance(data, dict):
+        raise DriveE2EError(f"{path}: expected a ScenarioNet scenario dict at the top level, got {type(data).__name__}")
+    meta = _get(data, "metadata", str(path))
+    tracks = _get(data, "tracks", str(path))
+    features = _get(data, "map_features", str(path))
+    ts = _array(_get(meta, "ts", f"{path}: metadata", None), f"{path}: metadata.ts")
+    if ts.ndim != 1 or len(ts) < 2 or np.any(np.diff(ts) <= 0):
+        raise DriveE2EError(f"{path}: metadata.ts: expected increasing step times (s), got shape {ts.shape}")
+    ts = ts - ts[0]
+    ego_src = str(options.ego if options.ego is not None else _get(meta, "sdc_id", f"{path}: metadata", None))
+    if ego_src not in {str(k) for k in tracks}:
+        flag = "--ego" if options.ego is not None else "metadata.sdc_id"
+        raise DriveE2EError(f"{path}: {flag} {ego_src!r} is not a track id")
+    dataset = str(meta.get("dataset", "unknown"))
+    sid = str(meta.get("scenario_id", data.get("id", path.stem)))
+    label = common.safe_id(f"{dataset}_{sid}")
+    notes: list[str] = []
+    skipped: list[Skipped] = []
+    raws, obstacles, swapped, samples = [], [], 0, []
+    for tid, tr in sorted(tracks.items(), key=lambda x: str(x[0])):
+        tid = str(tid)
+        where = f"{src} track {tid}"
+        state = _get(tr, "state", f"{path}: tracks[{tid!r}]")
+        for key in ("position", "heading", "valid"):
+            _get(state, key, f"{path}: tracks[{tid!r}].state", None)
+        pos = _array(state["position"], f"{path}: tracks[{tid!r}].state.position", 2)
+        n = len(pos)
+        if n != len(ts):
+            raise DriveE2EError(f"{path}: tracks[{tid!r}].state.position: expected {len(ts)} rows (one per ts), got {n}")
+        valid = np.asarray(state["valid"]).reshape(-1).astype(bool)
+        heading = _array(state["heading"], f"{path}: tracks[{tid!r}].state.heading").reshape(-1)
+        vel = _array(state["velocity"], f"{path}: tracks[{tid!r}].state.velocity", 2)[:, :2] \
+            if state.get("velocity") is not None else None
+        size = np.stack([_array(state.get(k, np.full(n, np.nan)), f"{path}: tracks[{tid!r}].state.{k}").reshape(n)
+                         for k in ("length", "width", "height")], axis=1)
+        if not valid.any():
+            skipped.append(Skipped(where, "empty track (no valid step)"))
+            continue
+        t, xy, yaw = ts[valid], pos[valid, :2], heading[valid]
+        v = vel[valid] if vel is not None else None
+        sz = np.nanmedian(size[valid], axis=0)
+        if not np.all(np.isfinite(xy)) or not np.all(np.isfinite(yaw)):
+            skipped.append(Skipped(where, "non-finite position or heading"))
+            continue
+        if tid == ego_src:
+            cat = "car"
+        else:
+            cat, skip, typ = _category(tr, where)
+            if cat is None:
+                kind = STATIC_KINDS.get(typ)
+                if kind is not None and np.all(np.isfinite(sz)):
+                    ob = common.static_obstacle(RawTrack(tid, "car", t, xy, yaw, sz), kind)
+                    if ob is not None:
+                        obstacles.append(ob)
+                        continue
+                    skip = Skipped(where, f"type {typ!r} moves; no agent category for it")
+                skipped.append(skip)
+                continue
+        default = np.array(common.DEFAULT_SIZES[cat])
+        sz = np.where(np.isfinite(sz) & (sz > 0), sz, default)
+        if cat in common.VEHICLES and sz[1] > sz[0]:
+            sz = sz[[1, 0, 2]]
+            swapped += 1
+        if tid == ego_src and options.ego is None:
+            xy = xy + EGO_CENTER_OFFSET_M * np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+        else:
+            samples.append((t, xy))
+        raws.append(RawTrack(tid, cat, t, xy, yaw, sz, v))
+    if swapped:
+        notes.append(f"{label}: {swapped} vehicle(s) had width > length; swapped (the source writes them crosswise)")
+    frac = _interpolated_fraction(samples)
+    if frac > 0.5:
+        notes.append(f"{label}: {100 * frac:.0f}% of moving agent samples lie exactly on straight, evenly spaced "
+                     "segments: they are interpolated between sparser keyframes by the converter "
+                     "(nuScenes annotates at 2 Hz), not measured")
+    dt = options.dt
+    num_steps = int(math.floor(ts[-1] / dt + 1e-6)) + 1
+    src_dt = float(np.median(np.diff(ts)))
+    if abs(src_dt - dt) > 1e-6:
+        notes.append(f"{label}: source step {src_dt:g} s resampled to {dt:g} s (linear interpolation)")
+    conv = common.convert_tracks(raws, ego_src, dt, num_steps, src, max_gap_s=max(common.DEFAULT_MAX_GAP_S,
+                                                                                  1.5 * src_dt))
+    skipped += conv.skipped
+    ego = next((tr for tr in conv.tracks if tr.track_id == conv.ids[ego_src]), None)
+    if ego is None:
+        raise DriveE2EError(f"{path}: the ego track {ego_src!r} has no samples on the grid")
+    full = _map(features, common.safe_id(f"{label}_map"), src, notes)
+    full.obstacles = obstacles
+    map_rec = common.crop_map(full, ego.xy, MAP_RADIUS_M)
+    if conv.gap_tracks:
+        notes.append(f"{label}: {conv.gap_tracks} tracks have gaps (left as missing steps, not interpolated)")
+    if obstacles:
+        notes.append(f"{label}: {len(obstacles)} static objects written as static obstacles")
+    scenarios = common.windowed_scenarios(label, map_rec, conv.tracks, conv.ids[ego_src], dt, num_steps, options,
+                                          str(path), skipped, notes, limit=limit,
+                                          intersection_id=common.safe_id(str(meta.get("map", label))))
+    out_meta = {"source": f"scenarionet ({dataset})", "license": LICENSE.get(dataset, "see the source dataset"),
+                "interpolated_fraction": {label: round(frac, 3)},
+                "track_ids": {s.scenario_id: {str(k): v for k, v in conv.ids.table().items()} for s in scenarios}}
+    return ImportResult(maps={map_rec.map_id: map_rec}, scenarios=scenarios, skipped=skipped, notes=notes,
+                        meta=out_meta)
+
+
+def _files(path: Path) -> list[Path]:
+    if path.is_dir():
+        found = sorted(path.rglob("sd_*.pkl")) or sorted(path.rglob("*.pkl"))
+        if not found:
+            raise DriveE2EError(f"{path}: no ScenarioNet sd_*.pkl files found")
+        return found
+    if path.suffix not in (".pkl", ".pickle"):
+        raise DriveE2EError(f"{path}: expected a ScenarioNet .pkl file or a folder of them")
+    return [path]
+
+
+def load(paths: list[Path], options: ImportOptions) -> ImportResult:
+    """Import ScenarioNet pickles (see the module docstring)."""
+    results, count = [], 0
+    for p in paths:
+        for f in _files(Path(p)):
+            limit = None if options.max_scenarios is None else options.max_scenarios - count
+            if limit is not None and limit <= 0:
+                break
+            r = _one(f, options, limit)
+            count += len(r.scenarios)
+            results.append(r)
+    return common.merge_results(results)

@@ -1,0 +1,211 @@
+"""ScenarioNet importer: the restricted unpickler, the shared nuScenes samples and tiny hand-written pickles."""
+
+from __future__ import annotations
+
+import os
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.scenario.importers import ImportOptions, load, scenarionet
+from drivee2e_jax.scenario.schema import validate_records
+
+DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "nuscenes_scenarionet"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data samples not found at {DATA}")
+
+
+# ---------------------------------------------------------------- a tiny synthetic scenario
+
+
+def _state(n, xy, heading=0.0, valid=None, size=(4.5, 1.9, 1.6)):
+    return {
+        "position": np.concatenate([xy, np.zeros((n, 1))], 1),
+        "heading": np.full(n, heading),
+        "velocity": np.zeros((n, 2)),
+        "valid": np.ones(n) if valid is None else np.asarray(valid, float),
+        "length": np.full((n, 1), size[0]), "width": np.full((n, 1), size[1]), "height": np.full((n, 1), size[2]),
+    }
+
+
+def scenario_dict(n=60, dt=0.1):
+    ts = np.arange(n) * dt
+    x = np.linspace(-30, 30, n)
+    lane_x = np.linspace(-60, 60, 13)
+    return {
+        "id": "tiny", "version": "test", "length": n,
+        "metadata": {"dataset": "synthetic", "scenario_id": "tiny-1", "map": "town", "sdc_id": "ego", "ts": ts,
+                     "sample_rate": dt},
+        "tracks": {
+            "ego": {"type": "VEHICLE", "metadata": {"type": "vehicle.car"},
+                    "state": _state(n, np.stack([x, np.zeros(n)], 1), size=(1.73, 4.08, 1.56))},
+            "car1": {"type": "VEHICLE", "metadata": {"type": "vehicle.bus.rigid"},
+                     "state": _state(n, np.stack([x - 20, np.zeros(n)], 1), size=(11.0, 2.9, 3.5))},
+            "ped": {"type": "PEDESTRIAN", "metadata": {}, "state": _state(n, np.stack([np.zeros(n), np.full(n, 8.0)], 1),
+                                                                           size=(0.7, 0.7, 1.8))},
+            "cone": {"type": "TRAFFIC_CONE", "metadata": {}, "state": _state(n, np.tile([[5.0, 4.0]], (n, 1)),
+                                                                              size=(0.4, 0.4, 0.8))},
+            "ghost": {"type": "VEHICLE", "metadata": {}, "state": _state(n, np.zeros((n, 2)), valid=np.zeros(n))},
+            "ufo": {"type": "UFO", "metadata": {}, "state": _state(n, np.zeros((n, 2)))},
+        },
+        "dynamic_map_states": {},
+        "map_features": {
+            "lane_a": {"type": "LANE_SURFACE_STREET", "polyline": np.stack([lane_x, np.zeros(13), np.zeros(13)], 1),
+                       "polygon": np.array([[-60, -1.75], [60, -1.75], [60, 1.75], [-60, 1.75]])},
+            "line_1": {"type": "ROAD_LINE_SOLID_SINGLE_WHITE", "polyline": np.stack([lane_x, np.full(13, -1.75)], 1)},
+            "edge_1": {"type": "ROAD_EDGE_BOUNDARY", "polyline": [(x_, 1.75, 0.0) for x_ in lane_x]},
+            "cw": {"type": "CROSSWALK", "polygon": np.array([[40.0, -3], [44, -3], [44, 3], [40, 3]])},
+            "bump": {"type": "SPEED_BUMP", "polygon": np.zeros((4, 2))},
+        },
+    }
+
+
+def write_pkl(path: Path, obj, protocol=pickle.HIGHEST_PROTOCOL) -> Path:
+    with open(path, "wb") as f:
+        pickle.dump(obj, f, protocol=protocol)
+    return path
+
+
+def test_tiny_scenario_converts(tmp_path):
+    p = write_pkl(tmp_path / "sd_tiny.pkl", scenario_dict())
+    r = load("scenarionet", [p], ImportOptions(split="val"))
+    assert len(r.scenarios) == 1 and validate_records_ok(r)
+    s = r.scenarios[0]
+    assert s.scenario_id == "synthetic_tiny-1" and s.split == "val" and s.num_steps == 60 and s.ego_track_id == 0
+    by_id = {r.meta["track_ids"][s.scenario_id][str(t.track_id)]: t for t in s.tracks}
+    assert sorted(by_id) == ["car1", "ego", "ped"]
+    assert by_id["car1"].category == "bus" and by_id["ped"].category == "pedestrian"
+    np.testing.assert_allclose(by_id["ego"].size, [4.08, 1.73, 1.56])  # swapped: width > length
+    np.testing.assert_allclose(by_id["ego"].xy[0], [-30 + scenarionet.EGO_CENTER_OFFSET_M, 0.0])
+    np.testing.assert_allclose(by_id["car1"].xy[0], [-50.0, 0.0])  # other agents are not shifted
+    reasons = {sk.source.split()[-1]: sk.reason for sk in r.skipped}
+    assert "empty track" in reasons["ghost"] and "unknown category 'UFO'" in reasons["ufo"]
+    m = r.maps[s.map_id]
+    assert len(m.obstacles) == 1 and m.obstacles[0].kind == "cone"
+    assert sorted(b.marking for b in m.boundaries) == ["road_edge", "solid"]
+    assert len(m.crosswalks) == 1 and len(m.lanes) == 1 and m.lanes[0].width == pytest.approx(3.5)
+    assert any("SPEED_BUMP x1" in n for n in r.notes) and any("swapped" in n for n in r.notes)
+
+
+def validate_records_ok(r) -> bool:
+    from drivee2e_jax.scenario.records import SuiteRecord
+
+    problems = validate_records(SuiteRecord("t", "1", r.maps, r.scenarios))
+    assert problems == [], problems[:3]
+    return True
+
+
+def test_protocol_2_pickles_with_codecs_encode_load(tmp_path):
+    p = write_pkl(tmp_path / "sd_p2.pkl", scenario_dict(), protocol=2)
+    assert b"_codecs" in p.read_bytes()  # numpy arrays under protocol 2 go through _codecs.encode
+    assert len(load("scenarionet", [p], ImportOptions()).scenarios) == 1
+
+
+def test_two_hz_source_is_resampled_and_says_so(tmp_path):
+    d = scenario_dict(n=13, dt=0.5)  # 6 s at 2 Hz
+    t = np.arange(13) * 0.5
+    d["tracks"]["car1"]["state"]["position"][:, 0] = -50 + 0.5 * t * t  # accelerating: no straight runs
+    p = write_pkl(tmp_path / "sd_2hz.pkl", d)
+    r = load("scenarionet", [p], ImportOptions())
+    s = r.scenarios[0]
+    assert s.num_steps == 61 and s.dt == pytest.approx(0.1)
+    ego = next(t for t in s.tracks if t.track_id == 0)
+    assert len(ego.t) == 61
+    np.testing.assert_allclose(np.diff(ego.xy[:, 0]), 60 / 60, atol=1e-9)  # linear motion stays linear
+    assert any("source step 0.5 s resampled to 0.1 s" in n for n in r.notes)
+    assert any("interpolated between sparser keyframes" in n for n in r.notes) is False  # measured at 2 Hz
+
+
+def test_bad_inputs_are_one_line_errors(tmp_path):
+    d = scenario_dict()
+    del d["tracks"]
+    with pytest.raises(DriveE2EError, match=r"sd_a.pkl: missing field 'tracks'"):
+        load("scenarionet", [write_pkl(tmp_path / "sd_a.pkl", d)], ImportOptions())
+    d = scenario_dict()
+    d["metadata"]["sdc_id"] = "nobody"
+    with pytest.raises(DriveE2EError, match=r"sd_b.pkl: metadata.sdc_id 'nobody' is not a track id"):
+        load("scenarionet", [write_pkl(tmp_path / "sd_b.pkl", d)], ImportOptions())
+    d = scenario_dict()
+    d["tracks"]["car1"]["state"]["position"] = d["tracks"]["car1"]["state"]["position"][:10]
+    with pytest.raises(DriveE2EError, match=r"tracks\['car1'\].state.position: expected 60 rows"):
+        load("scenarionet", [write_pkl(tmp_path / "sd_c.pkl", d)], ImportOptions())
+    with pytest.raises(DriveE2EError, match="--ego 'zzz' is not a track id"):
+        load("scenarionet", [write_pkl(tmp_path / "sd_d.pkl", scenario_dict())], ImportOptions(ego="zzz"))
+    (tmp_path / "sd_e.pkl").write_bytes(b"garbage")
+    with pytest.raises(DriveE2EError, match="sd_e.pkl: not a readable pickle"):
+        load("scenarionet", [tmp_path / "sd_e.pkl"], ImportOptions())
+    write_pkl(tmp_path / "sd_f.pkl", [1, 2, 3])
+    with pytest.raises(DriveE2EError, match="expected a ScenarioNet scenario dict"):
+        load("scenarionet", [tmp_path / "sd_f.pkl"], ImportOptions())
+    with pytest.raises(DriveE2EError, match="expected a ScenarioNet .pkl"):
+        load("scenarionet", [tmp_path / "sd_a.pkl"][:0] + [_touch(tmp_path / "x.txt")], ImportOptions())
+
+
+def _touch(p: Path) -> Path:
+    p.write_text("x")
+    return p
+
+
+class _Evil:
+    def __init__(self, marker: str):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_malicious_pickle_is_refused_and_never_runs(tmp_path):
+    marker = tmp_path / "pwned"
+    d = scenario_dict()
+    d["metadata"]["payload"] = _Evil(str(marker))
+    p = write_pkl(tmp_path / "sd_evil.pkl", d)
+    with pytest.raises(DriveE2EError) as e:
+        load("scenarionet", [p], ImportOptions())
+    msg = str(e.value)
+    assert "sd_evil.pkl: refused to load global" in msg and ".system" in msg and "\n" not in msg
+    assert not marker.exists()
+    # the plain unpickler would have run it: the test can fail
+    with open(p, "rb") as f:
+        pickle.load(f)
+    assert marker.exists()
+
+
+@pytest.mark.parametrize("payload", [
+    ("builtins", "eval"), ("subprocess", "Popen"), ("numpy", "load"), ("numpy.lib.npyio", "load"),
+])
+def test_unpickler_refuses_other_globals(payload):
+    import io
+
+    with pytest.raises(DriveE2EError, match=f"refused to load global {payload[0]}.{payload[1]}"):
+        scenarionet.SafeUnpickler(io.BytesIO(b""), source="x.pkl").find_class(*payload)
+
+
+# ---------------------------------------------------------------- the shared nuScenes samples
+
+
+@needs_data
+def test_shared_nuscenes_samples_import():
+    files = sorted(DATA.glob("sd_*.pkl"))
+    assert len(files) == 2
+    r = load("scenarionet", files, ImportOptions())
+    assert validate_records_ok(r)
+    assert [s.scenario_id for s in r.scenarios] == ["nuscenes_scene-0061", "nuscenes_scene-0103"]
+    for f, s in zip(files, r.scenarios):
+        raw = scenarionet.safe_load(f)
+        assert s.num_steps == raw["length"]  # 191 / 196 steps at 0.1 s
+        road_users = {k for k, t in raw["tracks"].items()
+                      if t["type"] in ("VEHICLE", "PEDESTRIAN", "CYCLIST") and t["state"]["valid"].any()}
+        assert len(s.tracks) == len(road_users)
+        ego = next(t for t in s.tracks if t.track_id == s.ego_track_id)
+        assert len(ego.t) == s.num_steps
+        src = raw["tracks"]["ego"]["state"]
+        shift = ego.xy - src["position"][:, :2]
+        np.testing.assert_allclose(np.linalg.norm(shift, axis=1), scenarionet.EGO_CENTER_OFFSET_M, atol=1e-3)
+        route_len = np.sum(np.linalg.norm(np.diff(s.route.waypoints, axis=0), axis=1))
+        assert route_len > 80  # the README: ~92 m and ~119 m
+        m = r.maps[s.map_id]
+        assert any(ln.successors for ln in m.lanes)  # inferred from geometry
+    assert any("% of moving agent samples lie exactly on straight" in n for n in r.notes)
+    assert r.meta["interpolated_fraction"]["nuscenes_scene-0061"] > 0.5
