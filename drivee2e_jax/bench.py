@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from drivee2e_jax.io.results import RunDir
+from drivee2e_jax.io.results import RunDir, event_key
 from drivee2e_jax.metrics import episode as ep
 
 
@@ -31,6 +31,11 @@ class BenchConfig:
       open_loop: also score waypoint policies open-loop on the logged
         demonstrations (L2 at 1/2/3 s in the ST-P3 and UniAD conventions,
         box collision rate with the logged agents), in the same sweep.
+      task: Behavior Metrics driving task (``tasks.TASKS``): scenario
+        filter + success rule; ``route_navigation`` = every scenario.
+      repetitions: run each policy this many times with seeds seed,
+        seed + 1, ...; rows carry a ``repetition`` column and the report
+        gives mean +- std over repetitions.
     """
 
     suite: str = "twin15"
@@ -46,6 +51,8 @@ class BenchConfig:
     seed: int = 0
     progress: bool = True
     open_loop: bool = False
+    task: str = "route_navigation"
+    repetitions: int = 1
 
 
 def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict:
@@ -56,11 +63,15 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     from drivee2e_jax.rollout import ControlTiming
     from drivee2e_jax.scenario import load_suite
     from drivee2e_jax.sim import SimConfig, score_preset
+    from drivee2e_jax.tasks import add_task_success, apply_task, get_task
 
     if cfg.limit is not None and cfg.limit < 1:
         raise DriveE2EError(f"--limit must be >= 1, got {cfg.limit}")
+    if cfg.repetitions < 1:
+        raise DriveE2EError(f"--repetitions must be >= 1, got {cfg.repetitions}")
+    task = get_task(cfg.task)
     suite = load_suite(cfg.suite)
-    packed = suite.pack(cfg.split)
+    packed = apply_task(task, suite.pack(cfg.split))
     policies = [load_policy(p) for p in cfg.policies]
     names = [p.name for p in policies]
     dup = {n for n in names if names.count(n) > 1}
@@ -73,7 +84,8 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         raise DriveE2EError(str(e)) from e
 
     suite_tag = Path(cfg.suite).name if Path(cfg.suite).exists() else cfg.suite
-    out = cfg.out or Path("results") / f"{suite_tag}-{cfg.split}"
+    task_tag = "" if task.name == "route_navigation" else f"-{task.name}"
+    out = cfg.out or Path("results") / f"{suite_tag}-{cfg.split}{task_tag}"
     run_info = {
         "suite": cfg.suite,
         "suite_version": suite.version,
@@ -85,6 +97,8 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         "latency": cfg.latency,
         "seed": cfg.seed,
         "open_loop": cfg.open_loop,
+        "task": task.name,
+        "repetitions": cfg.repetitions,
     }
     run = RunDir(out, run_info, force=cfg.force)
     print_fn(f"suite {suite.name} v{suite.version}, split {cfg.split}: {run_info['num_scenarios']} scenarios -> {out}")
@@ -93,23 +107,29 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         if run.done(pol.name):
             print_fn(f"[{pol.name}] already done in {run.policy_file(pol.name)} (resumed; --force to redo)")
             continue
-        bar = _progress_bar(pol.name, cfg.progress)
-        res = evaluate(
-            pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed, limit=cfg.limit, progress=bar.update
-        )
-        bar.close()
-        if cfg.open_loop:
-            _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn)
-        run.save_policy(
-            pol.name,
-            res.rows,
-            res.events,
-            {"policy_path": str(path), "compile_s": res.compile_s, "wall_s": res.wall_s, "steps": res.steps},
-        )
-        print_fn(
-            f"[{pol.name}] {len(res.rows)} episodes, {res.steps} steps: compile+first chunk {res.compile_s:.1f} s, "
-            f"rollout {res.wall_s:.1f} s"
-        )
+        rows, events, timing_info = [], {}, []
+        for rep in range(cfg.repetitions):
+            label = pol.name if cfg.repetitions == 1 else f"{pol.name} rep {rep + 1}/{cfg.repetitions}"
+            bar = _progress_bar(label, cfg.progress)
+            res = evaluate(
+                pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed + rep, limit=cfg.limit,
+                progress=bar.update,
+            )
+            bar.close()
+            if cfg.open_loop:
+                _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn)
+            add_task_success(task, res.rows)
+            if cfg.repetitions > 1:
+                for r in res.rows:
+                    r["repetition"] = rep
+            rows += res.rows
+            events.update({event_key(r): res.events[r["scenario_id"]] for r in res.rows})
+            timing_info.append({"compile_s": res.compile_s, "wall_s": res.wall_s, "steps": res.steps})
+            print_fn(
+                f"[{label}] {len(res.rows)} episodes, {res.steps} steps: compile+first chunk {res.compile_s:.1f} s, "
+                f"rollout {res.wall_s:.1f} s"
+            )
+        run.save_policy(pol.name, rows, events, {"policy_path": str(path), **timing_info[0], "runs": timing_info})
 
     rows_by_policy = {n: run.load_policy(n)["rows"] for n in names}
     summary = summarize(rows_by_policy, run_info)
@@ -235,8 +255,11 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
         "driving_score": round(merged["driving score"], 4),
         "route_completion": round(float(np.mean([r["route_completion"] for r in rows])), 4),
     }
+    if "task_success" in rows[0]:
+        out["task_success_rate"] = round(100.0 * float(np.mean([bool(r["task_success"]) for r in rows])), 4)
     if brief:
         return out
+    out["abilities"] = ability_scores(rows)
     g = lb_global(recs, planned_routes=len(recs))
     per_km = g["infractions"]
     collisions = sum(per_km[k] for k in ("collisions_pedestrian", "collisions_vehicle", "collisions_layout"))
@@ -259,6 +282,41 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
     out.update(_open_loop_means(rows))
     if any(r.min_speed_pct for r in recs):
         out["efficiency_pct"] = round(b2d_efficiency(recs), 4)
+    return out
+
+
+#: Bench2Drive's five abilities mapped onto the source's behaviour groups
+#: (B2D maps its own scenario types; ours is a judgement from the labels'
+#: meaning, docs/metrics.md): Merging = entering or crossing a conflicting
+#: stream (competing vehicles, left and right turns); Emergency_Brake =
+#: something may appear in the path (pedestrians / cyclists, competing
+#: vehicles); Give_Way = yielding (pedestrians / cyclists, unprotected left
+#: turns, U-turns); Traffic_Signs = obeying signals (red-light stops, yellow
+#: passes, straight through on the signal); Overtaking has no group here.
+ABILITIES = {
+    "Merging": ("COV", "LFT", "RT"),
+    "Overtaking": (),
+    "Emergency_Brake": ("IPC", "COV"),
+    "Give_Way": ("IPC", "LFT", "UT"),
+    "Traffic_Signs": ("STP", "YLW", "STR"),
+}
+
+
+def ability_scores(rows: list[dict]) -> dict:
+    """Bench2Drive multi-ability success rates (%), by ``ABILITIES``.
+
+    Per ability: successes / scenarios of its behaviour groups (B2D's
+    ``ability_benchmark``, same success test as SR); abilities without a
+    scenario are left out; ``mean`` averages the abilities present (B2D
+    averages its five). Returns {} when no row has a mapped group.
+    """
+    out = {}
+    for ability, groups in ABILITIES.items():
+        sel = [r for r in rows if r["behavior"] in groups]
+        if sel:
+            out[ability] = round(100.0 * float(np.mean([bool(r["success"]) for r in sel])), 4)
+    if out:
+        out["mean"] = round(float(np.mean(list(out.values()))), 4)
     return out
 
 
@@ -300,14 +358,19 @@ def format_tables(summary: dict) -> str:
     pols = summary["policies"]
     nw = max(18, *(len(n) + 2 for n in pols))  # name column width
     lines = []
+    task = summary["run"].get("task", "route_navigation")
+    with_task = task != "route_navigation"
     head = f"{'policy':<{nw}}{'SR %':>7}{'DS':>8}{'RC':>8}{'IS':>7}{'coll/km':>9}{'red/km':>8}{'offlane%':>9}{'t/scn s':>9}"
-    lines += ["Closed-loop results (mean over scenarios)", head, "-" * len(head)]
+    head += f"{'task SR%':>10}" if with_task else ""
+    title = "Closed-loop results (mean over scenarios)" + (f", task {task}" if with_task else "")
+    lines += [title, head, "-" * len(head)]
     for name, s in pols.items():
         o = s["overall"]
         lines.append(
             f"{name:<{nw}}{o['success_rate']:>7.1f}{o['driving_score']:>8.2f}{o['route_completion']:>8.2f}"
             f"{o['infraction_score']:>7.3f}{o['collisions_per_km']:>9.3f}{o['red_light_per_km']:>8.3f}"
             f"{o['outside_route_lanes_pct']:>9.2f}{o['eval_time_s']:>9.3f}"
+            + (f"{o.get('task_success_rate', float('nan')):>10.1f}" if with_task else "")
         )
     groups = [g for g in BEHAVIOR_ORDER if any(g in s["by_behavior"] for s in pols.values())]
     head = f"{'SR % by behaviour':<{nw}}" + "".join(f"{g:>7}" for g in groups)
@@ -324,6 +387,15 @@ def format_tables(summary: dict) -> str:
             f"{s['by_behavior'][g]['driving_score']:>7.1f}" if g in s["by_behavior"] else f"{'-':>7}" for g in groups
         )
         lines.append(f"{name:<{nw}}{cells}")
+    names = [a for a in ABILITIES if any(a in s["overall"].get("abilities", {}) for s in pols.values())]
+    if names:
+        aw = max(len(a) for a in names) + 2
+        head = f"{'B2D abilities SR %':<{nw}}" + "".join(f"{a:>{aw}}" for a in names) + f"{'mean':>8}"
+        lines += ["", head, "-" * len(head)]
+        for name, s in pols.items():
+            ab = s["overall"].get("abilities", {})
+            cells = "".join(f"{ab[a]:>{aw}.1f}" if a in ab else f"{'-':>{aw}}" for a in names)
+            lines.append(f"{name:<{nw}}{cells}{ab.get('mean', float('nan')):>8.1f}")
     fine = (
         ("dev m", "position_deviation_mean_m", 8.3),
         ("km/h", "average_speed_kmh", 7.1),

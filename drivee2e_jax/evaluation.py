@@ -96,9 +96,10 @@ def evaluate(
         carry.sim.episode, batch.route, sim.config.score
     ))
     wall_s = time.perf_counter() - t1
+    limit_kmh = _route_mean(np.asarray(carry.sim.ctx.speed_limit), np.asarray(batch.route.valid)) * 3.6
     stacked = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *logs)
     per_scn = (compile_s + wall_s) / max(b, 1)
-    rows, events = _rows_and_events(policy.name, meta, batch, results, stacked, sim.config, per_scn)
+    rows, events = _rows_and_events(policy.name, meta, batch, results, stacked, sim.config, per_scn, limit_kmh)
     return EvalResult(rows=rows, events=events, logs=stacked, compile_s=compile_s, wall_s=wall_s, steps=min(steps, total))
 
 
@@ -118,7 +119,12 @@ def _init_params(policy, sim: Simulator, batch, key):
     return policy.init(key, obs)
 
 
-def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_scenario):
+def _route_mean(values, valid):
+    """(B,) mean of (B, R) per-route-point values over the valid points."""
+    return np.where(valid, values, 0.0).sum(axis=1) / np.maximum(valid.sum(axis=1), 1)
+
+
+def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_scenario, limit_kmh):
     rows, events = [], {}
     route_len = np.asarray(batch.route.length)
     fine_rows = finegrained.batch_columns(
@@ -141,6 +147,7 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
             "weather": m["weather"],
             "time_of_day": m["time_of_day"],
             "route_length_m": round(float(route_len[i]), 3),
+            "route_speed_limit_kmh": round(float(limit_kmh[i]), 2),
             "route_completion": float(res.route_completion[i]),
             "infraction_score": float(res.infraction_score[i]),
             "driving_score": float(res.driving_score[i]),

@@ -12,11 +12,17 @@ examples:
   drivee2e bench --policy policies/expert.py --split test --out results/expert-test
   drivee2e bench --suite path/to/suite --policy my_policy.py --control-every 2 --latency 1
   drivee2e bench --open-loop --policy constant_velocity --policy expert --out results/ol
+  drivee2e bench --task lane_following --policy expert --repetitions 3
 
 Reference policies can be named without a path: log_replay, expert, stop,
 constant_velocity. --open-loop adds L2 at 1/2/3 s (ST-P3 and UniAD
 conventions) and the open-loop collision rate for waypoint policies.
-Results go to results/<suite>-<split>/ unless --out is given; a rerun resumes
+--task picks a Behavior Metrics driving task: route_navigation (default,
+every scenario), driving_in_traffic (scenarios with a logged vehicle ahead;
+success also needs never < 6 m behind it), lane_following (straight routes,
+other agents and signals removed; success also needs lane deviation <= 0.5 m
+and average speed 0.7-1.1 x the speed limit); see drivee2e_jax/tasks.py.
+Results go to results/<suite>-<split>[-<task>]/ unless --out is given; a rerun resumes
 (finished policies are skipped) and never overwrites without --force.
 """
 
@@ -61,6 +67,14 @@ def add_parser(subparsers) -> None:
         action="store_true",
         help="also score waypoint policies open-loop on the logged demonstrations (L2 at 1/2/3 s, collision rate)",
     )
+    p.add_argument(
+        "--task",
+        default="route_navigation",
+        choices=("route_navigation", "driving_in_traffic", "lane_following"),
+        help="driving task: scenario filter + success rule (default: route_navigation)",
+    )
+    p.add_argument("--repetitions", type=int, default=1, metavar="N",
+                   help="run each policy N times (seeds seed..seed+N-1); report gives mean ± std (default: 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -104,6 +118,8 @@ def run(args) -> int:
         seed=args.seed,
         progress=not args.no_progress,
         open_loop=args.open_loop,
+        task=args.task,
+        repetitions=args.repetitions,
     )
     run_bench(cfg, print_fn=print)
     return 0

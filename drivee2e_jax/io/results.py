@@ -26,6 +26,13 @@ from typing import Any, Iterable
 from drivee2e_jax.errors import DriveE2EError
 
 #: Columns every per-scenario row has, in CSV order (count columns follow).
+def event_key(row: dict) -> str:
+    """Key of a row's infraction events in a policy file: the scenario id,
+    suffixed ``#<repetition>`` from the second repetition on."""
+    rep = row.get("repetition") or 0
+    return row["scenario_id"] if not rep else f"{row['scenario_id']}#{rep}"
+
+
 BASE_COLUMNS = (
     "policy",
     "scenario_id",
@@ -154,7 +161,7 @@ class RunDir:
             data = self.load_policy(p)
             for r in data["rows"]:
                 rows.append(r)
-                rows_json.append({**r, "events": data["events"].get(r["scenario_id"], [])})
+                rows_json.append({**r, "events": data["events"].get(event_key(r), [])})
         cols = list(BASE_COLUMNS) + [c for c in count_columns if c not in BASE_COLUMNS]
         # Then every other per-scenario column (fine-grained, open-loop ...) in first-seen order.
         for r in rows:
