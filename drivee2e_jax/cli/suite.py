@@ -24,12 +24,14 @@ examples:
   drivee2e suite import argoverse2 ../shared/data/argoverse2 --out suites/av2
   drivee2e suite import scenarionet ../shared/data/nuscenes_scenarionet/*.pkl --out suites/nusc --split val
   drivee2e suite import argoverse2 log_dir/ --out suites/av2_5s --window-s 5 --max-scenarios 10
+  drivee2e suite import opendrive maps/town.xodr recordings/ --out suites/od
 
 formats: argoverse2 (scenario_*.parquet with its log_map_archive_*.json, or a
 sensor-log folder with annotations.feather + city_SE3_egovehicle.feather +
 map/), scenarionet (sd_*.pkl, read with a restricted unpickler), lanelet2-csv,
 commonroad, opendrive. Each PATH is one recording (file or folder) or a folder
-searched for recordings. Tracks are resampled onto the 0.1 s grid (never across
+searched for recordings; opendrive reads all PATHs together (a .xodr map plus
+the track CSVs / recording folders driven on it). See docs/importers.md. Tracks are resampled onto the 0.1 s grid (never across
 gaps); the recorded ego drives, or --ego names one, or one is chosen by the
 curation rules. Needs the import extra for Parquet/Feather:
 pip install 'drivee2e-jax[import]'. Check the result with
@@ -236,24 +238,33 @@ def run_import(args) -> int:
     options = ImportOptions(split=args.split, ego=args.ego, max_scenarios=args.max_scenarios,
                             window_s=args.window_s, name=args.name)
     t0 = time.perf_counter()
-    importers.module(args.format)  # an unknown/unavailable format fails before any reading
-    results = []
-    count = 0
-    bar = common.progress(args.paths, desc=f"importing {args.format}", unit="input",
-                          disable=None if len(args.paths) > 1 else True)
-    for path in bar:
-        if options.max_scenarios is not None and count >= options.max_scenarios:
-            break
-        left = None if options.max_scenarios is None else options.max_scenarios - count
-        opts = ImportOptions(**{**options.__dict__, "max_scenarios": left})
-        r = importers.load(args.format, [path], opts)
-        count += len(r.scenarios)
-        results.append(r)
-    result = merge_results(results)
+    mod = importers.module(args.format)  # an unknown/unavailable format fails before any reading
+    if getattr(mod, "LOAD_ALL_PATHS_AT_ONCE", False):
+        # the paths belong together (an OpenDRIVE map given next to track folders stored elsewhere)
+        result = importers.load(args.format, args.paths, options)
+    else:
+        result = merge_results(_load_each(importers, args.format, args.paths, options))
     name = args.name or out.name
     write_result(result, out, name=name, force=args.force)
     _print_import_summary(result, out, time.perf_counter() - t0, verbose=args.verbose)
     return common.EXIT_OK
+
+
+def _load_each(importers, fmt: str, paths: list[Path], options) -> list:
+    """One ``load`` per input path (with a progress bar over the inputs), honouring --max-scenarios."""
+    from dataclasses import replace
+
+    results = []
+    count = 0
+    bar = common.progress(paths, desc=f"importing {fmt}", unit="input", disable=None if len(paths) > 1 else True)
+    for path in bar:
+        if options.max_scenarios is not None and count >= options.max_scenarios:
+            break
+        left = None if options.max_scenarios is None else options.max_scenarios - count
+        r = importers.load(fmt, [path], replace(options, max_scenarios=left))
+        count += len(r.scenarios)
+        results.append(r)
+    return results
 
 
 def _print_import_summary(result, out: Path, seconds: float, *, verbose: bool) -> None:

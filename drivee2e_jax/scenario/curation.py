@@ -4,7 +4,8 @@ Schema validation (``scenario.schema``) says whether a suite is *readable*;
 these checks say whether a recorded scenario is *plausible* as a benchmark
 case. Each :class:`Finding` names the scenario, the track and the time. They
 are warnings: ``drivee2e suite validate`` prints them and fails only with
-``--strict``. Importers use :func:`route_problems` to choose an ego.
+``--strict``. Importers use :func:`route_problems` and
+:func:`track_plausibility` to choose an ego.
 
 Checks
 ------
@@ -46,7 +47,7 @@ from drivee2e_jax.scenario.records import MapRecord, RouteRecord, ScenarioRecord
 
 __all__ = [
     "Finding", "BOUNDS", "MIN_ROUTE_LENGTH_M", "route_lane_match", "route_problems", "check_completeness",
-    "check_plausibility", "check_route", "check_overlaps", "curate_scenario", "curate_suite",
+    "track_plausibility", "check_plausibility", "check_route", "check_overlaps", "curate_scenario", "curate_suite",
 ]
 
 #: (max speed m/s, max |acceleration| m/s^2, max |yaw rate| rad/s or None) per category.
@@ -256,25 +257,32 @@ def track_kinematics(tr: TrackRecord, dt: float) -> tuple[np.ndarray, np.ndarray
     return t, speed, acc, yr
 
 
+def track_plausibility(tr: TrackRecord, dt: float, scenario_id: str = "") -> list[Finding]:
+    """Speed / acceleration / yaw-rate bounds of one track's category (:data:`BOUNDS`)."""
+    bounds = BOUNDS.get(tr.category)
+    if bounds is None or len(tr.t) < 3:
+        return []
+    vmax, amax, wmax = bounds
+    t, v, a, w = track_kinematics(tr, dt)
+    checks = [("speed", v, vmax, "m/s"), ("acceleration", np.abs(a), amax, "m/s^2")]
+    if wmax is not None:
+        checks.append(("yaw rate", np.where(v > YAW_RATE_MIN_SPEED, np.abs(w), np.nan), wmax, "rad/s"))
+    out = []
+    for name, x, bound, unit in checks:
+        with np.errstate(invalid="ignore"):
+            bad = np.nan_to_num(x, nan=0.0) > bound
+        for i0, i1 in _runs(bad):
+            out.append(Finding(scenario_id, tr.track_id, float(t[i0]), "plausibility",
+                               f"{tr.category} {name} {np.nanmax(x[i0:i1]):.1f} {unit} > {bound:g} {unit}"
+                               f" for {i1 - i0} step{'s' if i1 - i0 != 1 else ''}"))
+    return out
+
+
 def check_plausibility(s: ScenarioRecord) -> list[Finding]:
-    """Speed / acceleration / yaw-rate bounds per category (:data:`BOUNDS`)."""
+    """Speed / acceleration / yaw-rate bounds per category (:data:`BOUNDS`), every track."""
     out = []
     for tr in s.tracks:
-        bounds = BOUNDS.get(tr.category)
-        if bounds is None or len(tr.t) < 3:
-            continue
-        vmax, amax, wmax = bounds
-        t, v, a, w = track_kinematics(tr, s.dt)
-        checks = [("speed", v, vmax, "m/s"), ("acceleration", np.abs(a), amax, "m/s^2")]
-        if wmax is not None:
-            checks.append(("yaw rate", np.where(v > YAW_RATE_MIN_SPEED, np.abs(w), np.nan), wmax, "rad/s"))
-        for name, x, bound, unit in checks:
-            with np.errstate(invalid="ignore"):
-                bad = np.nan_to_num(x, nan=0.0) > bound
-            for i0, i1 in _runs(bad):
-                out.append(Finding(s.scenario_id, tr.track_id, float(t[i0]), "plausibility",
-                                   f"{tr.category} {name} {np.nanmax(x[i0:i1]):.1f} {unit} > {bound:g} {unit}"
-                                   f" for {i1 - i0} step{'s' if i1 - i0 != 1 else ''}"))
+        out += track_plausibility(tr, s.dt, s.scenario_id)
     return out
 
 

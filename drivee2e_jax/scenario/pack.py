@@ -638,7 +638,7 @@ def _wrap(yaw: np.ndarray) -> np.ndarray:
     return np.pi - np.mod(np.pi - yaw, 2.0 * np.pi)
 
 
-def _track_order(s: ScenarioRecord) -> list[TrackRecord]:
+def track_order(s: ScenarioRecord) -> list[TrackRecord]:
     ego = [t for t in s.tracks if t.track_id == s.ego_track_id]
     if not ego:
         raise DriveE2EError(f"scenario {s.scenario_id!r}: ego_track_id: expected one of the track ids, got {s.ego_track_id}")
@@ -647,7 +647,7 @@ def _track_order(s: ScenarioRecord) -> list[TrackRecord]:
 
 def _fill_tracks(out: dict, b: int, s: ScenarioRecord) -> None:
     dt = float(s.dt)
-    for a, tr in enumerate(_track_order(s)):
+    for a, tr in enumerate(track_order(s)):
         t = np.asarray(tr.t, dtype=np.float64)
         k = np.rint(t / dt).astype(np.int64)
         where = f"scenario {s.scenario_id!r}: track {tr.track_id}"

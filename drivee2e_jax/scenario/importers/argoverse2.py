@@ -258,15 +258,9 @@ def _forecast(path: Path, options: ImportOptions):
             continue
         cat, skip = common.map_category(typ, FORECAST_CATEGORIES, f"{path.name} track {tid}")
         if cat is None:
-            kind = FORECAST_STATIC.get(typ)
-            if kind is not None:
-                raw = RawTrack(tid, "cyclist", t, xy, yaw, np.array([1.8, 0.6, 1.1]))
-                ob = common.static_obstacle(raw, kind)
-                if ob is not None:
-                    obstacles.append(ob)
-                    continue
-                skip = Skipped(f"{path.name} track {tid}", f"category {typ!r} moves; no agent category for it")
-            skipped.append(skip)
+            raw = RawTrack(tid, "cyclist", t, xy, yaw, np.array([1.8, 0.6, 1.1]))
+            out = common.static_or_skip(raw, FORECAST_STATIC.get(typ), skip, f"category {typ!r}")
+            (skipped if isinstance(out, Skipped) else obstacles).append(out)
             continue
         raws.append(RawTrack(tid, cat, t, xy, yaw, np.array(common.DEFAULT_SIZES[cat]), vel))
     sid = str(cols["scenario_id"][0])
@@ -328,14 +322,8 @@ def _sensor(folder: Path, options: ImportOptions):
         cat, skip = common.map_category(cat_src, SENSOR_CATEGORIES, f"{folder.name} track {uid}")
         raw = RawTrack(uid, cat or "car", t[m][o], city[m][o, :2], yaw[m][o], size[m][o], None, visible[m][o])
         if cat is None:
-            kind = SENSOR_STATIC.get(cat_src)
-            if kind is not None:
-                ob = common.static_obstacle(raw, kind)
-                if ob is not None:
-                    obstacles.append(ob)
-                    continue
-                skip = Skipped(f"{folder.name} track {uid}", f"category {cat_src!r} moves; no agent category for it")
-            skipped.append(skip)
+            out = common.static_or_skip(raw, SENSOR_STATIC.get(cat_src), skip, f"category {cat_src!r}")
+            (skipped if isinstance(out, Skipped) else obstacles).append(out)
             continue
         raws.append(raw)
     # the ego: poses over the annotated span (their own, higher rate)

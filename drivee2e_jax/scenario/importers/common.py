@@ -11,7 +11,10 @@ Inputs
 Each input path handed to ``load`` is self-contained: one file, or one folder
 holding one recording (a format may also search a folder for recordings). The
 CLI calls ``load`` once per path (for its progress bar) and combines the
-results with ``merge_results``; ``load`` must also accept several paths.
+results with ``merge_results``; ``load`` must also accept several paths. A
+format whose paths belong together (an OpenDRIVE map and track folders stored
+elsewhere) sets ``LOAD_ALL_PATHS_AT_ONCE = True`` and the CLI calls its
+``load`` once with every path.
 
 Result types
 ------------
@@ -48,6 +51,10 @@ Tracks
 ``static_obstacle(raw, kind) -> ObstacleRecord | None``: a parked/static object
     as a static obstacle (its median pose), None when it moves more than
     ``STATIC_MAX_MOTION_M``.
+``static_or_skip(raw, kind, skip, what) -> ObstacleRecord | Skipped``: a
+    track with no agent category: its static obstacle when ``kind`` is given
+    and it does not move, else ``skip`` (``kind`` None) or a Skipped saying
+    that ``what`` (e.g. "category 'SIGN'") moves.
 ``convert_tracks(raws, ego_source, dt, num_steps, source, *, max_gap_s=...) -> Converted``
     Every RawTrack resampled with ids from ``TrackIds``; ``Converted(tracks,
     ids, skipped, gap_tracks, interpolated_fraction)``.
@@ -83,6 +90,8 @@ Ego, route, behaviour
 ``select_ego(tracks, map_rec, num_steps, dt) -> (track | None, reasons)``:
     the source benchmark's curation rule for a scenario without a recorded ego
     (see the function); ``reasons`` maps each rejected vehicle's id to why.
+    Candidates with a plausibility finding are passed over (reason starting
+    ``PLAUSIBILITY_PREFIX``) and named in the "ego chosen automatically" note.
 ``infer_behavior(scenario, map_rec) -> (label, why)``: see the function for
     the rule (STP / IPC / COV when the data shows it, else the turn label).
 ``route_heading_change(waypoints) -> float``: signed total heading change, rad.
@@ -95,10 +104,15 @@ Scenarios and windows
     steps ``[k0, k1)`` with times shifted to start at 0 (empty ones dropped).
 ``make_scenario(scenario_id, map_rec, tracks, ego_id, dt, num_steps, options, ...) -> ScenarioRecord``:
     builds the route and the behaviour label and fills the defaults.
-``windowed_scenarios(base_id, map_rec, tracks, ego_id, dt, num_steps, options, source, skipped, notes, **kw) -> list[ScenarioRecord]``
+``windowed_scenarios(base_id, map_rec, tracks, ego_id, dt, num_steps, options, source, skipped, notes, *, signals=None, **kw) -> list[ScenarioRecord]``
     Cuts the log into ``windows`` and makes one scenario per window whose ego
     (``ego_id``, or ``select_ego`` when None) covers every step; other windows
-    become Skipped. Honours ``options.max_scenarios``.
+    become Skipped. Honours ``options.max_scenarios``. ``signals`` (see
+    ``window_signals``) gives every window its own signal states.
+``window_signals(signals, k0, k1, dt, num_steps) -> {group: (k1 - k0,) int8}``:
+    ``signals`` is None (no signals), a function of log times ``t`` (k,) s ->
+    {group: (k,) SIGNAL_STATES index}, or full-log arrays {group: (num_steps,)};
+    the states at steps ``[k0, k1)``.
 ``merge_results(results) -> ImportResult``: one result from several (maps by
     id; a repeated scenario id is an error).
 ``safe_id(text) -> str``: a portable scenario/map id.
@@ -108,6 +122,9 @@ Scenarios and windows
 ``read_table(path, columns) -> dict[str, np.ndarray]``: a Parquet or Feather
     file's columns (needs the ``import`` extra: pyarrow); a missing column is
     a DriveE2EError naming the file and the column.
+``parse_xml(path, what, root_tag) -> Element``: an XML file's root element; a
+    parse error, an unreadable file or another root tag is a one-line
+    DriveE2EError naming the file and ``what`` (e.g. "CommonRoad").
 """
 
 from __future__ import annotations
@@ -116,7 +133,7 @@ import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence, Union
 
 import numpy as np
 
@@ -138,11 +155,11 @@ from drivee2e_jax.scenario.records import (
 __all__ = [
     "ImportOptions", "Skipped", "ImportResult", "RawTrack", "Resampled", "TrackIds",
     "DEFAULT_MAX_GAP_S", "GRID_SNAP_S", "ROUTE_SPACING_M", "STATIC_MAX_MOTION_M", "VEHICLES",
-    "DEFAULT_SIZES", "resample", "resample_track", "box_polygon", "static_obstacle",
+    "DEFAULT_SIZES", "PLAUSIBILITY_PREFIX", "resample", "resample_track", "box_polygon", "static_obstacle", "static_or_skip",
     "map_category", "map_marking", "resample_polyline", "polyline_length", "infer_successors",
     "crop_map", "build_route", "select_ego", "infer_behavior", "route_heading_change",
-    "windows", "cut_window", "make_scenario", "Converted", "convert_tracks", "windowed_scenarios",
-    "merge_results", "safe_id", "write_result", "read_table",
+    "windows", "cut_window", "window_signals", "make_scenario", "Converted", "convert_tracks", "windowed_scenarios",
+    "merge_results", "safe_id", "write_result", "read_table", "parse_xml",
 ]
 
 #: Gaps between samples longer than this are not interpolated across, s
@@ -321,6 +338,21 @@ def static_obstacle(raw: RawTrack, kind: str) -> ObstacleRecord | None:
     yaw = float(np.angle(np.mean(np.exp(1j * np.asarray(raw.yaw)))))
     length, width = max(float(size[0]), 0.1), max(float(size[1]), 0.1)
     return ObstacleRecord(polygon=box_polygon(centre, yaw, length, width), height=max(float(size[2]), 0.1), kind=kind)
+
+
+def static_or_skip(raw: RawTrack, kind: str | None, skip: Skipped, what: str) -> ObstacleRecord | Skipped:
+    """A track without an agent category as a static obstacle of ``kind``, or why not.
+
+    ``skip`` is the category's own Skipped, returned when ``kind`` is None (no
+    static kind for it); a track that moves gives a Skipped at ``skip.source``
+    saying ``what`` (e.g. "category 'SIGN'") moves.
+    """
+    if kind is None:
+        return skip
+    ob = static_obstacle(raw, kind)
+    if ob is not None:
+        return ob
+    return Skipped(skip.source, f"{what} moves; no agent category for it")
 
 
 @dataclass
@@ -525,15 +557,23 @@ def route_heading_change(waypoints: np.ndarray, min_step_m: float = 0.5) -> floa
     return float(np.sum(_wrap(np.diff(h))))
 
 
+#: How ``select_ego`` starts the reason of a candidate rejected for a plausibility finding.
+PLAUSIBILITY_PREFIX = "implausible motion: "
+
+
 def select_ego(tracks: Sequence[TrackRecord], map_rec: MapRecord, num_steps: int, dt: float,
                ) -> tuple[TrackRecord | None, dict[int, str]]:
     """Pick an ego by the curation rules of the source benchmarks (nuPlan /
     Waymo-style "ego candidate"): a vehicle (``VEHICLES``) present at every
     step of the window, visible at every step, whose logged path is at least
-    ``curation.MIN_ROUTE_LENGTH_M`` long and gives a route that follows the
-    lanes (``curation.route_problems`` finds nothing). Among candidates the
-    longest path wins (ties: lowest track id). Returns the track (or None) and
-    the reason each other vehicle was rejected."""
+    ``curation.MIN_ROUTE_LENGTH_M`` long, gives a route that follows the
+    lanes (``curation.route_problems`` finds nothing) and has no plausibility
+    finding (``curation.track_plausibility``: speed, acceleration, yaw rate
+    within the category's bounds; an annotation glitch in the ego's log would
+    be replayed as the ego's own driving). Among candidates the longest path
+    wins (ties: lowest track id). Returns the track (or None) and the reason
+    each other vehicle was rejected; a candidate rejected only for
+    plausibility has a reason starting with ``PLAUSIBILITY_PREFIX``."""
     from drivee2e_jax.scenario import curation
 
     reasons: dict[int, str] = {}
@@ -555,6 +595,11 @@ def select_ego(tracks: Sequence[TrackRecord], map_rec: MapRecord, num_steps: int
         bad = curation.route_problems(build_route(tr), map_rec)
         if bad:
             reasons[tr.track_id] = bad[0]
+            continue
+        found = curation.track_plausibility(tr, dt)
+        if found:
+            more = f" (+{len(found) - 1} more)" if len(found) > 1 else ""
+            reasons[tr.track_id] = f"{PLAUSIBILITY_PREFIX}{found[0].message} at t={found[0].t:.1f} s{more}"
             continue
         key = (-length, tr.track_id, tr)
         if best is None or key[:2] < best[:2]:
@@ -691,6 +736,26 @@ def cut_window(tracks: Sequence[TrackRecord], k0: int, k1: int, dt: float) -> li
     return out
 
 
+#: Signal states of a whole log: a function of log times (k,) s -> {group: (k,)
+#: SIGNAL_STATES index}, or full-log arrays {group: (num_steps,)}.
+SignalSource = Union[Callable[[np.ndarray], Mapping[int, np.ndarray]], Mapping[int, np.ndarray]]
+
+
+def window_signals(signals: SignalSource | None, k0: int, k1: int, dt: float,
+                   num_steps: int) -> dict[int, np.ndarray]:
+    """The signal states at log steps ``[k0, k1)`` as {group: (k1 - k0,) int8}."""
+    if signals is None:
+        return {}
+    if callable(signals):
+        states = signals((k0 + np.arange(k1 - k0)) * dt)
+    else:
+        for g, v in signals.items():
+            if len(v) != num_steps:
+                raise ValueError(f"signals[{g}]: expected {num_steps} states (one per log step), got {len(v)}")
+        states = {g: np.asarray(v)[k0:k1] for g, v in signals.items()}
+    return {int(g): np.asarray(v, np.int8) for g, v in sorted(states.items())}
+
+
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.\-]+")
 
 
@@ -702,8 +767,12 @@ def safe_id(text: str) -> str:
 
 def make_scenario(scenario_id: str, map_rec: MapRecord, tracks: list[TrackRecord], ego_id: int, dt: float,
                   num_steps: int, options: ImportOptions, *, intersection_id: str | None = None,
-                  weather: str = "clear", time_of_day: str = "day") -> tuple[ScenarioRecord, str]:
-    """A ScenarioRecord with the ego's route and the inferred behaviour; also the label's why."""
+                  weather: str = "clear", time_of_day: str = "day",
+                  signals: Mapping[int, np.ndarray] | None = None) -> tuple[ScenarioRecord, str]:
+    """A ScenarioRecord with the ego's route and the inferred behaviour; also the label's why.
+
+    ``signals``: {group: (num_steps,) SIGNAL_STATES index} of this scenario.
+    """
     ego = next((t for t in tracks if t.track_id == ego_id), None)
     if ego is None:
         raise DriveE2EError(f"{scenario_id}: no track {ego_id} to use as ego")
@@ -711,6 +780,7 @@ def make_scenario(scenario_id: str, map_rec: MapRecord, tracks: list[TrackRecord
         scenario_id=safe_id(scenario_id), split=options.split, intersection_id=intersection_id or map_rec.map_id,
         map_id=map_rec.map_id, behavior="STR", weather=weather, time_of_day=time_of_day, ego_track_id=ego_id,
         route=build_route(ego), dt=dt, num_steps=num_steps, tracks=sorted(tracks, key=lambda t: t.track_id),
+        signals=dict(signals or {}),
     )
     label, why = infer_behavior(s, map_rec)
     assert label in BEHAVIORS
@@ -720,14 +790,24 @@ def make_scenario(scenario_id: str, map_rec: MapRecord, tracks: list[TrackRecord
 
 def windowed_scenarios(base_id: str, map_rec: MapRecord, tracks: list[TrackRecord], ego_id: int | None, dt: float,
                        num_steps: int, options: ImportOptions, source: str, skipped: list[Skipped],
-                       notes: list[str], *, limit: int | None = None, **kwargs) -> list[ScenarioRecord]:
+                       notes: list[str], *, limit: int | None = None, signals: SignalSource | None = None,
+                       source_ids: Mapping[int, str] | None = None, **kwargs) -> list[ScenarioRecord]:
     """One scenario per window of the log (see the module docstring).
 
     ``limit``: at most this many scenarios (default ``options.max_scenarios``).
+    ``source_ids``: track id -> source id (``TrackIds.table()``), to name
+    tracks in notes and skip reasons as the user knows them (``--ego`` takes
+    source ids).
+    ``signals``: the whole log's signal states (``SignalSource``), cut to each
+    window by ``window_signals``; None: no signals.
     ``kwargs`` go to ``make_scenario`` (intersection_id, weather, time_of_day).
     """
     limit = options.max_scenarios if limit is None else limit
     spans = windows(num_steps, dt, options.window_s)
+
+    def name(i: int) -> str:
+        return f"{i} (source {source_ids[i]})" if source_ids and i in source_ids else str(i)
+
     out = []
     for w, (k0, k1) in enumerate(spans):
         if limit is not None and len(out) >= limit:
@@ -740,11 +820,17 @@ def windowed_scenarios(base_id: str, map_rec: MapRecord, tracks: list[TrackRecor
         if ego is None:
             chosen, reasons = select_ego(cut, map_rec, n, dt)
             if chosen is None:
-                why = "; ".join(f"{i}: {r}" for i, r in list(reasons.items())[:3])
-                skipped.append(Skipped(where, f"no vehicle qualifies as ego ({why or 'no vehicles'})"))
+                # the near misses (rejected only for their motion) first: they are what --ego could pick
+                near = sorted(reasons.items(), key=lambda x: not x[1].startswith(PLAUSIBILITY_PREFIX))
+                why = "; ".join(f"{name(i)}: {r}" for i, r in near[:3])
+                motion_only = bool(near) and near[0][1].startswith(PLAUSIBILITY_PREFIX)
+                hint = "; --ego SOURCE_ID uses one anyway" if motion_only else ""
+                skipped.append(Skipped(where, f"no vehicle qualifies as ego ({why or 'no vehicles'}){hint}"))
                 continue
             ego = chosen.track_id
-            notes.append(f"{sid}: ego chosen automatically: track {ego} (the longest qualifying path)")
+            passed = [f"track {name(i)}: {r}" for i, r in reasons.items() if r.startswith(PLAUSIBILITY_PREFIX)]
+            notes.append(f"{sid}: ego chosen automatically: track {name(ego)} (the longest qualifying path)"
+                         + (f"; candidates passed over: {'; '.join(passed)}" if passed else ""))
         tr = next((t for t in cut if t.track_id == ego), None)
         k = np.rint(np.asarray(tr.t) / dt).astype(int) if tr is not None else np.zeros(0, int)
         if tr is None or len(np.unique(k)) < n:
@@ -752,7 +838,8 @@ def windowed_scenarios(base_id: str, map_rec: MapRecord, tracks: list[TrackRecor
             skipped.append(Skipped(where, f"the ego (track {ego}) is present at {have} of {n} steps; "
                                           "expected every step"))
             continue
-        s, why = make_scenario(sid, map_rec, cut, ego, dt, n, options, **kwargs)
+        s, why = make_scenario(sid, map_rec, cut, ego, dt, n, options,
+                               signals=window_signals(signals, k0, k1, dt, num_steps), **kwargs)
         notes.append(f"{s.scenario_id}: behaviour {s.behavior} ({why})")
         out.append(s)
     return out
@@ -783,12 +870,18 @@ def merge_results(results: Sequence[ImportResult]) -> ImportResult:
 
 
 def write_result(result: ImportResult, out: str | Path, *, name: str, force: bool = False) -> Path:
-    """Write ``result`` as the suite folder ``out`` (validated; atomic; see ``schema.write_suite``)."""
+    """Write ``result`` as the suite folder ``out`` (validated; atomic; see ``schema.write_suite``).
+
+    With no scenario the error names how many items were skipped and the first
+    one's source and reason (usually the whole story: a file without an ego).
+    """
     from drivee2e_jax.scenario.schema import write_suite
 
     if not result.scenarios:
+        n = len(result.skipped)
+        first = f"; first: {result.skipped[0].source}: {result.skipped[0].reason}" if n else ""
         raise DriveE2EError(f"nothing to write to {out}: no scenario could be imported "
-                            f"({len(result.skipped)} items skipped)")
+                            f"({n} item{'s' if n != 1 else ''} skipped{first})")
     used = {s.map_id for s in result.scenarios}
     suite = SuiteRecord(name=safe_id(name), version="1", maps={k: v for k, v in result.maps.items() if k in used},
                         scenarios=result.scenarios, meta=dict(result.meta))
@@ -830,3 +923,22 @@ def _is_text(t) -> bool:
     import pyarrow as pa
 
     return pa.types.is_string(t) or pa.types.is_large_string(t) or pa.types.is_dictionary(t)
+
+
+def parse_xml(path: Path, what: str, root_tag: str):
+    """The root element of the XML file ``path``, which must be ``<root_tag>``.
+
+    ``what`` names the format in the errors ("CommonRoad", "OSM", ...).
+    """
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise DriveE2EError(f"{path}: expected well-formed {what} XML, got a parse error ({e})") from None
+    except OSError as e:
+        raise DriveE2EError(f"{path}: expected a readable {what} file, got {e.strerror or e}") from None
+    if root.tag != root_tag:
+        article = "an" if root_tag[0].lower() in "aeiou" else "a"
+        raise DriveE2EError(f"{path}: expected {article} <{root_tag}> root element, got <{root.tag}>")
+    return root

@@ -37,8 +37,11 @@ One ``.xml`` file (or every ``*.xml`` in a folder) is one scenario on its own ma
   a recorded trajectory, and its vehicle is not among the obstacles, so it
   cannot be log-replayed. The ego is therefore a recorded obstacle:
   ``options.ego`` (an obstacle id), else ``common.select_ego`` (the
-  curation rules: present at every step, moving >= 20 m, on the lanes;
-  longest path wins). The planning problem's initial state and goal are kept
+  curation rules: present at every step, moving >= 20 m, on the lanes,
+  no implausible speed / acceleration / yaw rate; longest path wins). NGSIM
+  positions are video-tracked and noisy: in the Peachtree sample every
+  vehicle long enough to drive has an acceleration spike > 12 m/s^2, so no
+  ego is chosen there (``--ego`` forces one). The planning problem's initial state and goal are kept
   in ``suite.json`` meta (``planning_problems``) and the removed vehicle is
   reported in the notes.
 """
@@ -54,7 +57,6 @@ import numpy as np
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
-from drivee2e_jax.scenario.importers.lanelet2_csv import attach_signals
 from drivee2e_jax.scenario.importers.lanelets import Lanelet, StopLineSpec, assemble_map
 from drivee2e_jax.scenario.records import MapRecord, ObstacleRecord
 
@@ -129,15 +131,7 @@ class _Reader:
 
 
 def _parse(path: Path) -> ET.Element:
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as e:
-        raise DriveE2EError(f"{path}: expected well-formed CommonRoad XML, got a parse error ({e})") from None
-    except OSError as e:
-        raise DriveE2EError(f"{path}: expected a readable CommonRoad file, got {e.strerror or e}") from None
-    if root.tag != "commonRoad":
-        raise DriveE2EError(f"{path}: expected a <commonRoad> root element, got <{root.tag}>")
-    return root
+    return common.parse_xml(path, "CommonRoad", "commonRoad")
 
 
 def _speed_signs(root: ET.Element, r: _Reader) -> dict[str, float]:
@@ -401,14 +395,15 @@ def _load_file(path: Path, options: ImportOptions, result: ImportResult) -> None
     result.skipped += conv.skipped
     ego = None if options.ego is None else conv.ids[options.ego]
     remaining = None if options.max_scenarios is None else options.max_scenarios - len(result.scenarios)
-    scen = common.windowed_scenarios(map_id, m, conv.tracks, ego, dt, num_steps, options, str(path),
-                                     result.skipped, result.notes, limit=remaining)
+
     def states_at(t: np.ndarray) -> dict[int, np.ndarray]:
         src_steps = np.rint(t / step).astype(np.int64)
         return {g: (light_states(c, off, src_steps) if active else np.zeros(len(t), np.int8))
                 for g, (c, off, active) in sorted(lights.items())}
 
-    attach_signals(scen, map_id, num_steps, dt, options.window_s, states_at)
+    scen = common.windowed_scenarios(map_id, m, conv.tracks, ego, dt, num_steps, options, str(path),
+                                     result.skipped, result.notes, limit=remaining, signals=states_at,
+                                     source_ids=conv.ids.table())
     result.scenarios += scen
     result.meta.setdefault("track_ids", {})[map_id] = {str(k): v for k, v in conv.ids.table().items()}
 

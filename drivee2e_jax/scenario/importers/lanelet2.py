@@ -41,6 +41,7 @@ from typing import Callable
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.lanelets import Lanelet, StopLineSpec, assemble_map, orient_bounds
 from drivee2e_jax.scenario.records import BoundaryRecord, MapRecord
 
@@ -125,14 +126,7 @@ def _int(e: ET.Element, key: str, path: Path, what: str) -> int:
 def read_osm(path: Path, origin: tuple[float, float] = (0.0, 0.0)) -> OsmData:
     """Parse an OSM XML file; node positions projected as the module docstring says."""
     path = Path(path)
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as e:
-        raise DriveE2EError(f"{path}: expected well-formed OSM XML, got a parse error ({e})") from None
-    except OSError as e:
-        raise DriveE2EError(f"{path}: expected a readable OSM file, got {e.strerror or e}") from None
-    if root.tag != "osm":
-        raise DriveE2EError(f"{path}: expected an <osm> root element, got <{root.tag}>")
+    root = common.parse_xml(path, "OSM", "osm")
     ids, lat, lon, local = [], [], [], []
     for e in root.iter("node"):
         nid = _int(e, "id", path, "node")

@@ -38,7 +38,8 @@ Signals: the light CSV holds change events (``RawFrameID``,
 holds until the next row; before the first row the state is unknown). Column
 ``... light N`` is signal group N, the group the map's ``traffic_light``
 regulatory elements give their stop lines (``lanelet2.load_map``). States are
-sampled at every log step of each scenario (``ScenarioRecord.signals``).
+sampled at every log step of each scenario (``ScenarioRecord.signals``; cut per
+window by ``common.windowed_scenarios``).
 """
 
 from __future__ import annotations
@@ -47,7 +48,6 @@ import csv
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -55,10 +55,10 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
 from drivee2e_jax.scenario.importers.lanelet2 import load_map, signal_group_of_name
-from drivee2e_jax.scenario.records import MapRecord, ScenarioRecord
+from drivee2e_jax.scenario.records import MapRecord
 
 __all__ = ["CATEGORY_TABLE", "DEFAULT_WINDOW_S", "Recording", "recordings_of", "find_map",
-           "find_recordings", "import_recording", "attach_signals", "read_tracks", "read_signal_events", "signal_states", "load"]
+           "find_recordings", "import_recording", "read_tracks", "read_signal_events", "signal_states", "load"]
 
 #: Window length when ``options.window_s`` is None, s (twin15 logs are 20 s).
 DEFAULT_WINDOW_S = 20.0
@@ -349,33 +349,23 @@ def import_recording(rec: Recording, map_rec: MapRecord, options: ImportOptions,
         return
     base = common.safe_id(rec.name)
     ego = None if options.ego is None else conv.ids[options.ego]
-    scen = common.windowed_scenarios(base, map_rec, conv.tracks, ego, dt, num_steps, opts, where,
-                                     result.skipped, result.notes, limit=remaining)
+    states_at = None
     if rec.lights is not None:
         times, groups = read_signal_events(rec.lights)
-        attach_signals(scen, base, num_steps, dt, opts.window_s,
-                       lambda t: {g: signal_states(times, st, t0 + t * 1000.0) for g, st in sorted(groups.items())})
+
+        def states_at(t: np.ndarray) -> dict[int, np.ndarray]:
+            return {g: signal_states(times, st, t0 + t * 1000.0) for g, st in sorted(groups.items())}
+
+    scen = common.windowed_scenarios(base, map_rec, conv.tracks, ego, dt, num_steps, opts, where,
+                                     result.skipped, result.notes, limit=remaining, signals=states_at,
+                                     source_ids=conv.ids.table())
+    if rec.lights is not None:
         unknown = sorted(set(groups) - {s.signal_group for s in map_rec.stop_lines})
         if unknown:
             result.notes.append(f"{rec.name}: light group(s) {unknown} of {rec.lights.name} guard no stop line of "
                                 f"the map (no traffic_light regulatory element names them)")
     result.scenarios += scen
     result.meta.setdefault("track_ids", {})[base] = {str(k): v for k, v in conv.ids.table().items()}
-
-
-def attach_signals(scen: list[ScenarioRecord], base: str, num_steps: int, dt: float, window_s: float | None,
-                   states_at: Callable[[np.ndarray], dict[int, np.ndarray]]) -> None:
-    """Fill ``signals`` of the scenarios ``common.windowed_scenarios`` made from one log.
-
-    A scenario's id names its window as ``windowed_scenarios`` does (``base`` or
-    ``base_wNN``); ``states_at(t)`` gives {group: (k,) SIGNAL_STATES index} at log
-    times ``t`` (k,) s. (Belongs in ``common.windowed_scenarios`` as a ``signals``
-    argument; kept here until it is.)
-    """
-    spans = common.windows(num_steps, dt, window_s)
-    k0_of = {(base if len(spans) == 1 else f"{base}_w{w:02d}"): k0 for w, (k0, _) in enumerate(spans)}
-    for s in scen:
-        s.signals = states_at((k0_of[s.scenario_id] + np.arange(s.num_steps)) * dt)
 
 
 def load(paths: list[Path], options: ImportOptions) -> ImportResult:

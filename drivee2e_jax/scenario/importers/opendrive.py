@@ -327,14 +327,7 @@ def read_map(path: Path, map_id: str | None = None) -> tuple[MapRecord, list[str
     """An OpenDRIVE file -> (MapRecord, notes); rules in the module docstring."""
     path = Path(path)
     r = _Reader(path)
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as e:
-        raise DriveE2EError(f"{path}: expected well-formed OpenDRIVE XML, got a parse error ({e})") from None
-    except OSError as e:
-        raise DriveE2EError(f"{path}: expected a readable .xodr file, got {e.strerror or e}") from None
-    if root.tag != "OpenDRIVE":
-        raise DriveE2EError(f"{path}: expected an <OpenDRIVE> root element, got <{root.tag}>")
+    root = common.parse_xml(path, "OpenDRIVE", "OpenDRIVE")
     notes: list[str] = []
     lanelets: list[Lanelet] = []
     table: dict[int, str] = {}

@@ -311,14 +311,9 @@ def _one(path: Path, options: ImportOptions, limit: int | None) -> ImportResult:
         else:
             cat, skip, typ = _category(tr, where)
             if cat is None:
-                kind = STATIC_KINDS.get(typ)
-                if kind is not None and np.all(np.isfinite(sz)):
-                    ob = common.static_obstacle(RawTrack(tid, "car", t, xy, yaw, sz), kind)
-                    if ob is not None:
-                        obstacles.append(ob)
-                        continue
-                    skip = Skipped(where, f"type {typ!r} moves; no agent category for it")
-                skipped.append(skip)
+                kind = STATIC_KINDS.get(typ) if np.all(np.isfinite(sz)) else None
+                out = common.static_or_skip(RawTrack(tid, "car", t, xy, yaw, sz), kind, skip, f"type {typ!r}")
+                (skipped if isinstance(out, Skipped) else obstacles).append(out)
                 continue
         default = np.array(common.DEFAULT_SIZES[cat])
         sz = np.where(np.isfinite(sz) & (sz > 0), sz, default)

@@ -10,6 +10,7 @@ import pytest
 
 from drivee2e_jax import cli
 from drivee2e_jax.scenario.schema import read_suite
+from test_opendrive import JUNCTION, _interaction_csv
 from test_scenarionet import scenario_dict, write_pkl
 
 DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data"
@@ -77,6 +78,38 @@ def test_errors_are_one_line_without_traceback(tmp_path, capsys):
     code, _, err = run(capsys, "suite", "import", "no-such-format", pk[0], "--out", tmp_path / "w")
     assert code == 2 and "invalid choice" in err
     assert not (tmp_path / "x").exists() and not (tmp_path / "z").exists()
+
+
+def test_opendrive_map_and_tracks_stored_apart_load_together(tmp_path, capsys):
+    """opendrive sets LOAD_ALL_PATHS_AT_ONCE: the CLI hands the .xodr and the track folder to one load()."""
+    from drivee2e_jax.scenario.importers import opendrive
+
+    assert opendrive.LOAD_ALL_PATHS_AT_ONCE
+    xodr = tmp_path / "maps_elsewhere" / "junction.xodr"
+    xodr.parent.mkdir()
+    xodr.write_text(JUNCTION)
+    lanes = {ln.id: ln for ln in opendrive.read_map(xodr)[0].lanes}
+    rec = tmp_path / "data" / "recordings" / "rec"  # no .xodr in it, its parent or ../../maps/
+    rec.mkdir(parents=True)
+    _interaction_csv(rec / "vehicle_tracks_000.csv", np.vstack([lanes[49].centerline, lanes[1049].centerline[1:]]))
+    out = tmp_path / "od"
+    code, stdout, err = run(capsys, "suite", "import", "opendrive", xodr, rec, "--out", out)
+    assert code == 0, err
+    assert "wrote 1 scenarios" in stdout
+    suite = read_suite(out)
+    assert [s.map_id for s in suite.scenarios] == ["junction"] and list(suite.maps) == ["junction"]
+    # the same folder alone has no map to find (what a per-path load would have seen)
+    code, _, err = run(capsys, "suite", "import", "opendrive", rec, "--out", tmp_path / "od2")
+    assert code == 2 and "expected an .xodr map given with it" in err
+
+
+@needs_data
+def test_nothing_imported_names_the_first_skipped_item(tmp_path, capsys):
+    """The SinD samples hold no vehicle tracks (Git LFS): the one-line error says so."""
+    code, _, err = run(capsys, "suite", "import", "lanelet2-csv", DATA / "sind" / "Changchun", "--out", tmp_path / "o")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "no scenario could be imported (1 item skipped; first: " in err
+    assert "no vehicle tracks, so no ego" in err and not (tmp_path / "o").exists()
 
 
 def test_missing_pyarrow_names_the_extra(tmp_path, capsys, monkeypatch):

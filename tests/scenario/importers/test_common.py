@@ -211,6 +211,38 @@ def test_select_ego_follows_the_curation_rules():
     assert none is None
 
 
+def _glitched(tid, x0, x1, n, at=25, jump_m=1.5):
+    """A car driving east along y = 0 whose position jumps ``jump_m`` ahead at one step (an annotation glitch)."""
+    xy = line(x0, x1, n)
+    xy[at, 0] += jump_m
+    return track(tid, xy, yaw=np.zeros(n))
+
+
+def test_select_ego_passes_over_candidates_with_implausible_motion():
+    m = straight_map()
+    n = 50
+    spiky, clean = _glitched(1, -40, 10, n), track(2, line(-40, 0, n))  # the glitched one has the longer path
+    ego, reasons = common.select_ego([spiky, clean], m, n, DT)
+    assert ego.track_id == 2
+    assert reasons[1].startswith(common.PLAUSIBILITY_PREFIX + "car acceleration")
+    assert "m/s^2 > 12 m/s^2" in reasons[1] and "at t=2." in reasons[1]
+    # through windowed_scenarios: the note names the candidate passed over, by its source id too
+    skipped, notes = [], []
+    out = common.windowed_scenarios("x", m, [spiky, clean], None, DT, n, ImportOptions(), "f", skipped, notes,
+                                    source_ids={1: "veh-a", 2: "veh-b"})
+    assert [s.ego_track_id for s in out] == [2] and not skipped
+    chosen = next(x for x in notes if "ego chosen automatically" in x)
+    assert "track 2 (source veh-b)" in chosen
+    assert "candidates passed over: track 1 (source veh-a): implausible motion: car acceleration" in chosen
+    # no clean candidate left: the window is skipped, naming the near miss first and how to force it
+    out = common.windowed_scenarios("x", m, [track(3, line(-40, -38, n)), spiky], None, DT, n, ImportOptions(), "f",
+                                    skipped, notes, source_ids={1: "veh-a", 3: "veh-c"})
+    assert out == []
+    assert skipped[-1].reason.startswith("no vehicle qualifies as ego (1 (source veh-a): implausible motion: ")
+    assert "3 (source veh-c): moves 2.0 m" in skipped[-1].reason
+    assert skipped[-1].reason.endswith("; --ego SOURCE_ID uses one anyway")
+
+
 # ---------------------------------------------------------------- behaviour
 
 
@@ -286,6 +318,59 @@ def test_windowed_scenarios_skip_windows_without_the_ego():
     out = common.windowed_scenarios("x", m, [ego], 0, DT, 100, ImportOptions(window_s=5.0, max_scenarios=1), "f",
                                     skipped, notes)
     assert len(out) == 1
+
+
+def test_windowed_scenarios_cut_signals_per_window():
+    m = straight_map()
+    ego = track(0, line(-50, 49, 100))
+    full = {3: (np.arange(100) % 4).astype(np.int8), 1: np.full(100, 2, np.int8)}
+    as_function = lambda t: {g: v[np.rint(t / DT).astype(int)] for g, v in full.items()}  # noqa: E731
+    for source in (full, as_function):
+        out = common.windowed_scenarios("x", m, [ego], 0, DT, 100, ImportOptions(window_s=3.0), "f", [], [],
+                                        signals=source)
+        assert [s.scenario_id for s in out] == ["x_w00", "x_w01", "x_w02"]
+        for s, k0 in zip(out, (0, 30, 60)):
+            assert sorted(s.signals) == [1, 3] and s.signals[3].dtype == np.int8
+            np.testing.assert_array_equal(s.signals[3], full[3][k0:k0 + 30])
+            np.testing.assert_array_equal(s.signals[1], 2)
+    none = common.windowed_scenarios("x", m, [ego], 0, DT, 100, ImportOptions(), "f", [], [])
+    assert none[0].signals == {}
+    with pytest.raises(ValueError, match=r"signals\[3\]: expected 100 states"):
+        common.windowed_scenarios("x", m, [ego], 0, DT, 100, ImportOptions(), "f", [], [], signals={3: full[3][:50]})
+
+
+def test_static_or_skip():
+    still = RawTrack("c", "car", np.arange(5) * DT, np.zeros((5, 2)), np.zeros(5), np.array([0.5, 0.5, 1.0]))
+    moving = RawTrack("c", "car", np.arange(5) * DT, line(0, 4, 5), np.zeros(5), np.array([0.5, 0.5, 1.0]))
+    own = common.Skipped("f track c", "category 'CONE' has no agent category (not a road user)")
+    assert common.static_or_skip(still, "cone", own, "category 'CONE'").kind == "cone"
+    assert common.static_or_skip(still, None, own, "category 'CONE'") is own
+    moved = common.static_or_skip(moving, "cone", own, "category 'CONE'")
+    assert moved == common.Skipped("f track c", "category 'CONE' moves; no agent category for it")
+
+
+def test_write_result_error_names_the_first_skipped_item(tmp_path):
+    res = ImportResult({}, [], [common.Skipped("a.xml", "no dynamic obstacle with a usable trajectory, so no ego"),
+                                common.Skipped("b.xml", "other")], [])
+    with pytest.raises(DriveE2EError) as e:
+        common.write_result(res, tmp_path / "empty", name="t")
+    assert str(e.value) == (f"nothing to write to {tmp_path / 'empty'}: no scenario could be imported (2 items "
+                            "skipped; first: a.xml: no dynamic obstacle with a usable trajectory, so no ego)")
+    with pytest.raises(DriveE2EError, match=r"imported \(0 items skipped\)$"):
+        common.write_result(ImportResult({}, [], [], []), tmp_path / "empty", name="t")
+
+
+def test_parse_xml_errors(tmp_path):
+    ok = tmp_path / "ok.xml"
+    ok.write_text("<osm><node id='1'/></osm>")
+    assert common.parse_xml(ok, "OSM", "osm").tag == "osm"
+    for text, needle in (("<osm><node", "expected well-formed OSM XML, got a parse error"),
+                         ("<map/>", "expected an <osm> root element, got <map>")):
+        ok.write_text(text)
+        with pytest.raises(DriveE2EError, match=needle):
+            common.parse_xml(ok, "OSM", "osm")
+    with pytest.raises(DriveE2EError, match="missing.xml: expected a readable OSM file"):
+        common.parse_xml(tmp_path / "missing.xml", "OSM", "osm")
 
 
 def test_write_result_refuses_non_empty_and_writes_valid_suite(tmp_path):

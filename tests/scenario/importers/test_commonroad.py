@@ -33,8 +33,15 @@ def test_light_cycle_semantics():
 def test_samples_import_validate_and_keep_what_is_there(tmp_path):
     _need_data()
     res = cr.load([DATA], ImportOptions())
+    # every Peachtree vehicle long enough to drive has an acceleration spike (NGSIM noise): no automatic ego
+    assert [s.scenario_id for s in res.scenarios] == ["USA_Lanker-1_1_T-1"]
+    why = next(sk.reason for sk in res.skipped if sk.source == str(PEACH))
+    assert why.startswith("no vehicle qualifies as ego (5 (source 564): implausible motion: car acceleration")
+    assert "7 (source 569): implausible motion: car acceleration 20.6 m/s^2 > 12 m/s^2 for 4 steps at t=1.3 s" in why
+    assert why.endswith("--ego SOURCE_ID uses one anyway")
+    forced = cr.load([PEACH], ImportOptions(ego="569"))  # the vehicle that was picked before the rule
+    res.scenarios += forced.scenarios
     by_id = {s.scenario_id: s for s in res.scenarios}
-    assert sorted(by_id) == ["USA_Lanker-1_1_T-1", "USA_Peach-4_8_T-1"]
     lank, peach = by_id["USA_Lanker-1_1_T-1"], by_id["USA_Peach-4_8_T-1"]
     assert (len(lank.tracks), lank.num_steps, lank.dt) == (24, 41, 0.1)
     assert (len(peach.tracks), peach.num_steps) == (9, 61)
