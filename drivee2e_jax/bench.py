@@ -113,7 +113,7 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
             bar = _progress_bar(label, cfg.progress)
             res = evaluate(
                 pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed + rep, limit=cfg.limit,
-                progress=bar.update,
+                progress=bar.update, maps=suite.maps if "bev" in getattr(pol, "required_sensors", ()) else None,
             )
             bar.close()
             if cfg.open_loop:

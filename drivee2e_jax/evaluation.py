@@ -17,6 +17,7 @@ import numpy as np
 
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.metrics import finegrained
+from drivee2e_jax.observe import sensors
 from drivee2e_jax.rollout import ControlTiming, Rollout
 from drivee2e_jax.sim import Simulator, SimConfig
 
@@ -54,6 +55,7 @@ def evaluate(
     limit: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     chunk: int = 50,
+    maps: dict | None = None,
 ) -> EvalResult:
     """Roll ``policy`` out on every scenario of ``suite``'s ``split`` at once.
 
@@ -63,14 +65,27 @@ def evaluate(
       split: split name; ``None`` = every scenario.
       params: policy parameters (``policy.init`` is called when None).
       progress: ``progress(done_steps, total_steps)`` after every chunk.
+      maps: {map_id: MapRecord}, needed for the BEV when ``suite`` is a
+        ``PackedBatch`` (a ``Suite`` provides its own).
+
+    Sensors: ``config.sensors`` plus every sensor the policy lists in
+    ``required_sensors`` (``with_policy_sensors``).
     """
     packed = suite.pack(split) if hasattr(suite, "pack") else suite
-    batch, meta = device_batch(packed, limit)
-    sim = Simulator(config or SimConfig())
+    if limit is not None:
+        packed = packed.select(np.arange(min(limit, len(packed))))
+    cfg = with_policy_sensors(config or SimConfig(), policy)
+    if cfg.sensors.bev is not None and maps is None:
+        if not hasattr(suite, "maps"):
+            raise ValueError("evaluate: the BEV needs the suite's maps: pass maps= with a PackedBatch")
+        maps = suite.maps
+    assets = sensors.build_assets(packed, cfg.sensors, maps)
+    batch, meta = device_batch(packed)
+    sim = Simulator(cfg)
     key = jax.random.PRNGKey(seed)
     if params is None:
-        params = _init_params(policy, sim, batch, key)
-    ro = Rollout(sim, policy, params, timing=timing, chunk=chunk)
+        params = _init_params(policy, sim, batch, key, assets)
+    ro = Rollout(sim, policy, params, timing=timing, chunk=chunk, assets=assets)
     b = int(batch.ego_index.shape[0])
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
 
@@ -112,10 +127,21 @@ def device_batch(packed, limit: int | None = None):
     return jax.tree_util.tree_map(jnp.asarray, batch), meta
 
 
-def _init_params(policy, sim: Simulator, batch, key):
+def with_policy_sensors(config: SimConfig, policy) -> SimConfig:
+    """``config`` with the sensors ``policy.required_sensors`` lists turned on
+    (at ``config.sensors``' sizes, else the defaults); others as configured."""
+    required = tuple(getattr(policy, "required_sensors", ()) or ())
+    if not required:
+        return config
+    want = set(required) | set(config.sensors.enabled)
+    return dataclasses.replace(config, sensors=sensors.SensorConfig.for_policy(tuple(want), config.sensors))
+
+
+def _init_params(policy, sim: Simulator, batch, key, assets=None):
     """``policy.init`` on the first scenario's initial observation."""
     first = jax.tree_util.tree_map(lambda a: a[0], batch)
-    _, obs = jax.jit(sim.reset)(key, first)
+    first_assets = None if assets is None else assets.replace(map_index=assets.map_index[0])
+    _, obs = jax.jit(sim.reset)(key, first, first_assets)
     return policy.init(key, obs)
 
 

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from drivee2e_jax.observe import sensors
 from drivee2e_jax.sim import Simulator, SimState, StepLog
 from drivee2e_jax.types import Controls, Scenario, Waypoints
 
@@ -71,28 +72,33 @@ class Rollout:
         carry, logs = ro.advance(carry, batch)    # `chunk` steps, jitted
     """
 
-    def __init__(self, sim: Simulator, policy, params=None, *, timing: ControlTiming | None = None, chunk: int = 50):
+    def __init__(self, sim: Simulator, policy, params=None, *, timing: ControlTiming | None = None, chunk: int = 50,
+                 assets=None):
         self.sim = sim
         self.policy = policy
         self.params = params
+        self.assets = assets
         self.timing = timing or ControlTiming()
         self.chunk = int(chunk)
-        self.init = jax.jit(jax.vmap(self._init_one, in_axes=(0, 0, None)))
-        self.init = _with_params(self.init, lambda: self.params)
-        self.advance = jax.jit(jax.vmap(self._advance_one, in_axes=(0, 0, None)))
-        self.advance = _with_params(self.advance, lambda: self.params)
+        # Sensor assets: the map raster table is shared (broadcast), the map
+        # index is per scenario; the policy params are broadcast.
+        ax = sensors.assets_axes(assets)
+        self.init = jax.jit(jax.vmap(self._init_one, in_axes=(0, 0, ax, None)))
+        self.init = _with_params(self.init, lambda: (self.assets, self.params))
+        self.advance = jax.jit(jax.vmap(self._advance_one, in_axes=(0, 0, ax, None)))
+        self.advance = _with_params(self.advance, lambda: (self.assets, self.params))
 
     # one scenario -----------------------------------------------------------
-    def _init_one(self, scenario: Scenario, key, params) -> Carry:
+    def _init_one(self, scenario: Scenario, key, assets, params) -> Carry:
         k_reset, k_pol, key = jax.random.split(key, 3)
-        sim_state, obs = self.sim.reset(k_reset, scenario)
+        sim_state, obs = self.sim.reset(k_reset, scenario, assets)
         pstate = self.policy.initial_state(obs)
         action, _ = self.policy.act(params, obs, pstate, k_pol)
         neutral = _brake_like(action)
         queue = jax.tree_util.tree_map(lambda a: jnp.stack([a] * self.timing.latency), neutral) if self.timing.latency else None
         return Carry(sim=sim_state, obs=obs, policy_state=pstate, held=neutral, queue=queue, key=key)
 
-    def _step_one(self, scenario: Scenario, carry: Carry, params):
+    def _step_one(self, scenario: Scenario, carry: Carry, assets, params):
         key, k_act = jax.random.split(carry.key)
         query = (carry.sim.step % self.timing.control_every) == 0
         proposed, pstate = self.policy.act(params, carry.obs, carry.policy_state, k_act)
@@ -106,12 +112,12 @@ class Rollout:
         else:
             applied = pick(proposed, carry.held)
             queue = None
-        sim_state, obs, log = self.sim.step(scenario, carry.sim, applied)
+        sim_state, obs, log = self.sim.step(scenario, carry.sim, applied, assets)
         return Carry(sim=sim_state, obs=obs, policy_state=pstate, held=applied, queue=queue, key=key), log
 
-    def _advance_one(self, scenario: Scenario, carry: Carry, params):
+    def _advance_one(self, scenario: Scenario, carry: Carry, assets, params):
         def body(c, _):
-            return self._step_one(scenario, c, params)
+            return self._step_one(scenario, c, assets, params)
 
         return jax.lax.scan(body, carry, None, length=self.chunk)
 
@@ -141,13 +147,13 @@ class Rollout:
         return carry, stacked
 
 
-def _with_params(fn, get_params):
-    """Bind the policy params as the jitted function's last (broadcast) argument."""
+def _with_params(fn, get_extra):
+    """Bind the sensor assets and policy params as the jitted function's last arguments."""
 
     def call(*args):
-        return fn(*args, get_params())
+        return fn(*args, *get_extra())
 
-    call.lower = lambda *args: fn.lower(*args, get_params())  # for compile timing
+    call.lower = lambda *args: fn.lower(*args, *get_extra())  # for compile timing
     return call
 
 

@@ -22,6 +22,7 @@ from drivee2e_jax import controller as ctl
 from drivee2e_jax import dynamics, geometry, infractions, replay
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.metrics.driving_score import ScoreConfig
+from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.vector import ObsConfig, observe, route_speed_limits
 from drivee2e_jax.types import Controls, EgoState, Observation, Privileged, Scenario, Waypoints
 
@@ -67,7 +68,9 @@ class SimConfig:
       dt: simulation step, s (the log may have another step; replay interpolates).
       dynamics: kinematic bicycle parameters.
       controller: PID + pure-pursuit parameters for waypoint actions.
-      obs: which observations and their sizes.
+      obs: which vector observations and their sizes.
+      sensors: ``observe.sensors.SensorConfig``: BEV raster / LiDAR on or off
+        (both off by default) and their sizes.
       score: leaderboard criteria and penalties (preset ``paper`` by default).
       max_episode_s: episode cap in seconds; ``None`` = the scenario's log length.
     """
@@ -76,6 +79,7 @@ class SimConfig:
     dynamics: dynamics.BicycleParams = dataclasses.field(default_factory=dynamics.BicycleParams)
     controller: ctl.ControllerParams = dataclasses.field(default_factory=ctl.ControllerParams)
     obs: ObsConfig = dataclasses.field(default_factory=ObsConfig)
+    sensors: sensors.SensorConfig = dataclasses.field(default_factory=sensors.SensorConfig)
     score: ScoreConfig = dataclasses.field(default_factory=lambda: score_preset("paper"))
     max_episode_s: float | None = None
 
@@ -253,10 +257,10 @@ class Simulator:
         controls = dynamics.inverse(ego, nxt.xy, nxt.yaw, cfg.dt, cfg.dynamics)
         return Privileged(ego=ego, log_next_xy=nxt.xy, log_next_yaw=nxt.yaw, log_valid=nxt.valid, log_controls=controls)
 
-    def _observe(self, scenario: Scenario, state: SimState, agents, key) -> Observation:
+    def _observe(self, scenario: Scenario, state: SimState, agents, key, assets=None) -> Observation:
         lane_xy, lane_pv, _, _ = _lane_rows(scenario, state.ctx.lanes)
         signals = replay.signals_at(scenario.signals, state.ego.t, scenario.dt_log)
-        return observe(
+        obs = observe(
             ego=state.ego,
             agents=agents,
             size=scenario.tracks.size,
@@ -273,6 +277,16 @@ class Simulator:
             key=key,
             cfg=self.config.obs,
         )
+        if not self.config.sensors.enabled:
+            return obs
+        tr, m = scenario.tracks, scenario.map
+        out = sensors.render(
+            self.config.sensors, ego=state.ego, ego_lw=state.ctx.ego_lw, agents=agents, size=tr.size,
+            category=tr.category, ego_row=scenario.ego_index, obstacles=m.obstacles,
+            obstacle_height=m.obstacle_height, stop_state=signals, route_xy=scenario.route.xy,
+            route_valid=scenario.route.valid, assets=assets,
+        )
+        return obs.replace(**out)
 
     def episode_steps(self, scenario: Scenario):
         """() int32 number of steps this scenario runs at most."""
@@ -283,8 +297,11 @@ class Simulator:
         return jnp.floor(dur / self.config.dt + 1e-4).astype(jnp.int32)
 
     # -- public ------------------------------------------------------------
-    def reset(self, key, scenario: Scenario) -> tuple[SimState, Observation]:
-        """Ego on its logged pose at t = 0; criteria initialised on the route."""
+    def reset(self, key, scenario: Scenario, assets=None) -> tuple[SimState, Observation]:
+        """Ego on its logged pose at t = 0; criteria initialised on the route.
+
+        ``assets``: ``observe.sensors.SensorAssets`` of this scenario, needed
+        when ``config.sensors`` turns the BEV on."""
         tr = scenario.tracks
         i = scenario.ego_index
         ego = dynamics.ego_from_log(tr.xy[i, 0], tr.yaw[i, 0], tr.vel[i, 0], jnp.zeros((), jnp.float32))
@@ -307,7 +324,7 @@ class Simulator:
             ctx=ctx,
             key=key,
         )
-        obs = self._observe(scenario, state, self._agents(scenario, ego.t), k_obs)
+        obs = self._observe(scenario, state, self._agents(scenario, ego.t), k_obs, assets)
         return state, obs
 
     def to_controls(self, state: SimState, action) -> tuple[Controls, ctl.ControllerState, jnp.ndarray]:
@@ -324,8 +341,9 @@ class Simulator:
         controls, repaired = sanitize_controls(controls)
         return controls, cstate, bad | repaired
 
-    def step(self, scenario: Scenario, state: SimState, action) -> tuple[SimState, Observation, StepLog]:
-        """Advance one ``dt``. A finished episode stays frozen (``active`` False)."""
+    def step(self, scenario: Scenario, state: SimState, action, assets=None) -> tuple[SimState, Observation, StepLog]:
+        """Advance one ``dt``. A finished episode stays frozen (``active`` False).
+        ``assets`` as in ``reset``."""
         cfg = self.config
         active = ~state.episode.done
         controls, cstate, invalid = self.to_controls(state, action)
@@ -345,7 +363,7 @@ class Simulator:
         # per-episode constants in ctx need no select).
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new.replace(ctx=None), state.replace(ctx=None))
         new = new.replace(ctx=state.ctx)
-        obs = self._observe(scenario, new, agents, k_obs)
+        obs = self._observe(scenario, new, agents, k_obs, assets)
         log = StepLog(
             t=new.ego.t,
             xy=new.ego.xy,

@@ -128,11 +128,11 @@ def test_no_recompilation_across_chunks(log_replay, batch):
     sim = Simulator(SimConfig())
     ro = Rollout(sim, log_replay, None, chunk=5)
     step = chex.assert_max_traces(ro._advance_one, n=1)
-    ro.advance = jax.jit(jax.vmap(step, in_axes=(0, 0, None)))
+    ro.advance = jax.jit(jax.vmap(step, in_axes=(0, 0, None, None)))
     b = jax.tree_util.tree_map(jnp.asarray, batch.scenario)
     carry = ro.init(b, jax.random.split(jax.random.PRNGKey(0), len(batch)))
     for _ in range(3):
-        carry, _ = ro.advance(b, carry, None)
+        carry, _ = ro.advance(b, carry, None, None)
     chex.clear_trace_counter()
 
 

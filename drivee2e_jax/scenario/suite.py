@@ -344,6 +344,7 @@ class Suite:
         self._source = source
         self._use_cache = cache
         self._records: SuiteRecord | None = None
+        self._maps: dict | None = None
         self._packed: _Packed | None = None
 
     @classmethod
@@ -368,6 +369,16 @@ class Suite:
         if self._records is None:
             self._records = self._source.records()
         return self._records
+
+    @property
+    def maps(self) -> dict:
+        """{map_id: MapRecord}. A built-in suite builds its maps without
+        generating its traffic (the BEV's static layers need only these)."""
+        if self._records is None and isinstance(self._source, _Builtin) and hasattr(self._source.module(), "maps"):
+            if self._maps is None:
+                self._maps = self._source.module().maps()
+            return self._maps
+        return self.records.maps
 
     def _cache_target(self) -> tuple[tuple[Path, Path] | None, str | None]:
         if not self._use_cache or not hasattr(self._source, "key_parts"):

@@ -3,9 +3,16 @@
     python experiments/perf/run.py            # readable table
     python experiments/perf/run.py --json     # one JSON object per line and configuration
 
-Configurations: ``state_only`` = dynamics + replay + infractions + criteria +
-vector observations with the ``log_replay`` policy, at batch sizes B (default
-1, 64, 800 scenarios of the suite). For each it reports scenario-steps/s,
+Configurations (``--configs``, default both):
+
+* ``state_only`` = dynamics + replay + infractions + criteria + vector
+  observations with the ``log_replay`` policy, at batch sizes B (default 1,
+  64, 800 scenarios of the suite);
+* ``sweep_bev_lidar`` = the whole suite (800 episodes x the log length) with
+  the 128 x 128 BEV and the 64 x 360 LiDAR on and a small MLP policy reading
+  both (issue budget: <= 60 s after compilation); reports ``wall_s`` and
+  ``compile_s`` (ahead-of-time lower + compile of init and advance).
+ For each it reports scenario-steps/s,
 agent-steps/s (valid replayed agents, the ego included, summed over the
 simulated steps), compile time cold and from JAX's persistent compilation
 cache (each measured in a fresh subprocess: trace + lower + compile of the
@@ -95,6 +102,93 @@ def measure(suite: str, batch: int, chunk: int, steps: int | None) -> dict:
     }
 
 
+def mlp_sensor_policy(hidden: int = 64):
+    """A small MLP over the packed BEV (per-channel occupancy of 8 x 8 pooled
+    cells) and the LiDAR range image (per-column minimum over channels),
+    random weights: the stand-in policy of ``sweep_bev_lidar``."""
+    import jax
+    import jax.numpy as jnp
+
+    from drivee2e_jax.observe.bev import BevConfig, unpack_bits
+    from drivee2e_jax.policy import StatelessPolicy
+    from drivee2e_jax.types import Controls
+
+    n_ch = len(BevConfig().channels)
+
+    class MLPSensors(StatelessPolicy):
+        name = "mlp_sensors"
+        required_sensors = ("bev", "lidar")
+
+        def features(self, obs):
+            img = unpack_bits(obs.bev, n_ch)  # (H, W, C)
+            h, w, c = img.shape
+            pooled = img.reshape(8, h // 8, 8, w // 8, c).mean(axis=(1, 3)).reshape(-1)
+            ranges = obs.lidar.min(axis=0) / 85.0
+            return jnp.concatenate([pooled, ranges, obs.ego])
+
+        def init(self, key, obs):
+            d = self.features(obs).shape[0]
+            k1, k2 = jax.random.split(key)
+            return {"w1": jax.random.normal(k1, (d, hidden)) / jnp.sqrt(d), "b1": jnp.zeros(hidden),
+                    "w2": 0.1 * jax.random.normal(k2, (hidden, 3)), "b2": jnp.zeros(3)}
+
+        def act(self, params, obs, policy_state, key):
+            h = jnp.tanh(self.features(obs) @ params["w1"] + params["b1"])
+            o = h @ params["w2"] + params["b2"]
+            return Controls(throttle=jax.nn.sigmoid(o[0]), brake=jax.nn.sigmoid(o[1]) * 0.1,
+                            steer=jnp.tanh(o[2]) * 0.1), policy_state
+
+    return MLPSensors()
+
+
+def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int | None) -> dict:
+    """The full-suite sweep with BEV + LiDAR and the MLP policy."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from drivee2e_jax.evaluation import _init_params, with_policy_sensors
+    from drivee2e_jax.observe import sensors
+    from drivee2e_jax.rollout import Rollout
+    from drivee2e_jax.scenario import load_suite
+    from drivee2e_jax.sim import SimConfig, Simulator
+
+    suite = load_suite(suite_name)
+    packed = suite.pack(None)
+    if batch is not None:
+        packed = packed.select(np.arange(min(batch, len(packed))))
+    pol = mlp_sensor_policy()
+    cfg = with_policy_sensors(SimConfig(), pol)
+    t0 = time.perf_counter()
+    assets = sensors.build_assets(packed, cfg.sensors, suite.maps)
+    raster_s = time.perf_counter() - t0
+    scn = jax.tree_util.tree_map(jnp.asarray, packed.scenario)
+    b = len(packed)
+    sim = Simulator(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(0), b)
+    params = _init_params(pol, sim, scn, keys[0], assets)
+    ro = Rollout(sim, pol, params, chunk=chunk, assets=assets)
+    t0 = time.perf_counter()
+    ro.init.lower(scn, keys).compile()
+    carry_shape = jax.eval_shape(ro.init, scn, keys)
+    ro.advance.lower(scn, carry_shape).compile()
+    compile_s = time.perf_counter() - t0
+    carry = ro.init(scn, keys)
+    carry, _ = ro.advance(scn, carry)  # runs the compiled chunk once (jit cache), then restart
+    jax.block_until_ready(carry)
+    carry = ro.init(scn, keys)
+    total = steps or int(scn.tracks.valid.shape[-1]) - 1
+    n_chunks = max(1, -(-total // chunk))
+    t0 = time.perf_counter()
+    for _ in range(n_chunks):
+        carry, _ = ro.advance(scn, carry)
+    jax.block_until_ready(carry)
+    wall = time.perf_counter() - t0
+    return {"config": "sweep_bev_lidar", "suite": suite_name, "batch": b, "steps": n_chunks * chunk,
+            "bev": "128x128", "lidar": "64x360", "wall_s": wall, "compile_s": compile_s, "raster_s": raster_s,
+            "scenario_steps_per_s": b * n_chunks * chunk / wall, "raster_mb": assets.raster.nbytes / 2**20}
+
+
 def _probe_subprocess(suite, batch, chunk, cache_dir) -> dict:
     env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(cache_dir), DRIVEE2E_PERSISTENT_CACHE="1")
     cmd = [sys.executable, __file__, "--_probe", "--suite", suite, "--batches", str(batch), "--chunk", str(chunk)]
@@ -122,6 +216,10 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=None, help="simulated steps (default: the log length)")
     ap.add_argument("--no-compile", action="store_true", help="skip the cold/cached compile probes")
     ap.add_argument("--json", action="store_true", help="one JSON object per line")
+    ap.add_argument("--configs", default="state_only,sweep_bev_lidar",
+                    help="comma-separated configurations (default state_only,sweep_bev_lidar)")
+    ap.add_argument("--sweep-batch", type=int, default=None,
+                    help="sweep_bev_lidar: only the first N scenarios (default: the whole suite)")
     ap.add_argument("--_probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     batches = [int(b) for b in args.batches.split(",")]
@@ -134,7 +232,8 @@ def main(argv=None) -> int:
     from drivee2e_jax.scenario import load_suite
 
     load_suite(args.suite).pack(None)  # build the suite cache outside the timings
-    for b in batches:
+    configs = args.configs.split(",")
+    for b in batches if "state_only" in configs else ():
         row = {"config": "state_only", "suite": args.suite}
         if not args.no_compile:
             with tempfile.TemporaryDirectory() as cache:
@@ -155,6 +254,17 @@ def main(argv=None) -> int:
                 f"rss {row['peak_rss_mb']:.0f} MB cores {row['cores']}",
                 flush=True,
             )
+    if "sweep_bev_lidar" in configs:
+        row = sweep_bev_lidar(args.suite, args.chunk, args.steps, args.sweep_batch)
+        row = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()}
+        row["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+        row["cores"] = os.cpu_count()
+        if args.json:
+            print(json.dumps(row), flush=True)
+        else:
+            print(f"sweep_bev_lidar B={row['batch']} steps={row['steps']} wall {row['wall_s']:.1f} s "
+                  f"({row['scenario_steps_per_s']:.0f} scn-steps/s) compile {row['compile_s']:.1f} s "
+                  f"rss {row['peak_rss_mb']:.0f} MB cores {row['cores']}", flush=True)
     return 0
 
 

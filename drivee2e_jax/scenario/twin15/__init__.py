@@ -25,7 +25,15 @@ from ..records import SuiteRecord
 #: Bump whenever the generated suite changes (caches key on it).
 VERSION = "1"
 
-__all__ = ["generate", "VERSION"]
+__all__ = ["generate", "maps", "VERSION"]
+
+
+def maps() -> dict:
+    """{map_id: MapRecord} of the 15 intersections, without generating any
+    traffic (seed-independent; a few seconds)."""
+    from .build import SPECS, build_layout
+
+    return {sp.map_id: build_layout(sp.map_id).map for sp in SPECS}
 
 
 def generate(seed: int = 0, *, scenarios: Iterable[int] | None = None, workers: int | None = None) -> SuiteRecord:
