@@ -15,7 +15,7 @@ from drivee2e_jax.observe import raycast
 from ray_oracle import clipped, corners, f32, faces, jax_scene, scenes, shapes
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=25, deadline=None)
 @given(f32(-20, 20), f32(-20, 20), f32(-3.1, 3.1), f32(-20, 20), f32(-20, 20), f32(-3.1, 3.1), f32(0.3, 12), f32(0.3, 4))
 def test_ray_box_distance_vs_shapely(ox, oy, az, bx, by, byaw, length, width):
     poly = Polygon(corners((bx, by), byaw, length, width))
@@ -37,7 +37,7 @@ def test_ray_box_distance_vs_shapely(ox, oy, az, bx, by, byaw, length, width):
         np.testing.assert_allclose(got, Point(o).distance(inter), atol=2e-4, rtol=1e-5)
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=25, deadline=None)
 @given(f32(-20, 20), f32(-20, 20), f32(-3.1, 3.1), f32(-20, 20), f32(-20, 20), f32(-20, 20), f32(-20, 20))
 def test_ray_segment_distance_vs_shapely(ox, oy, az, ax, ay, bx, by):
     o = np.array([ox, oy], np.float64)
@@ -62,7 +62,7 @@ def _fan(z):
 _buffer72 = jax.jit(lambda s, o, h: raycast.polar_buffer(s, o, h, _fan(72), 85.0, raycast.BufferConfig(depth=3)))
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(scenes())
 def test_polar_buffer_layers_vs_shapely(sc):
     """Every buffered layer is the oracle's d-th nearest face of that ray."""
