@@ -132,7 +132,7 @@ def batch_columns(
     collision = np.asarray(logs.events.collision, bool)
     invasion = np.asarray(logs.facts.lane_invasion, bool)
 
-    smooth = smoothness_pct(xy, yaw, speed, n_act, dt_s)
+    smooth = smoothness_pct(yaw, speed, n_act, dt_s)
     # Steps with no aligned lane in reach have no lane centre: left out.
     lane_ok = active & np.isfinite(offset)
     n_lane = lane_ok.sum(axis=1)
@@ -163,7 +163,7 @@ def batch_columns(
     return out
 
 
-def smoothness_pct(xy, yaw, speed, n_active, dt_s: float, chunk: int = comfort.B2D_CHUNK) -> np.ndarray:
+def smoothness_pct(yaw, speed, n_active, dt_s: float, chunk: int = comfort.B2D_CHUNK) -> np.ndarray:
     """Bench2Drive smoothness of a batch of episodes, % of passing chunks.
 
     Each episode's first ``n_active`` frames are turned into B2D's per-frame
@@ -174,12 +174,10 @@ def smoothness_pct(xy, yaw, speed, n_active, dt_s: float, chunk: int = comfort.B
     Savitzky-Golay pass; an episode of <= ``chunk`` frames is judged whole.
 
     Args:
-      xy: (B, T, 2) m (unused by B2D; kept for the signature's symmetry).
       yaw: (B, T) rad.  speed: (B, T) m/s.  n_active: (B,) int frames.
 
     Returns: (B,) float64 %, NaN for episodes of fewer than 3 frames.
     """
-    del xy
     b, t = yaw.shape
     n = np.asarray(n_active, np.int64)
     rows = np.arange(b)
