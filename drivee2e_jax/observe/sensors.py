@@ -28,6 +28,7 @@ import dataclasses
 from typing import Sequence
 
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from drivee2e_jax.observe import bev as bev_mod
@@ -103,8 +104,6 @@ def build_assets(packed, config: SensorConfig, maps) -> SensorAssets | None:
     """
     if config.bev is None:
         return None
-    import numpy as np
-
     from drivee2e_jax.observe.raster import rasterize_maps
 
     used = sorted({str(m) for m in packed.meta.map_id})
