@@ -53,6 +53,26 @@ def test_quickstart_notebook_runs(tmp_path):
     assert "events:" in out and "mean speed per episode" in out
 
 
+def test_own_policy_notebook_runs(tmp_path):
+    env = dict(
+        os.environ,
+        DRIVEE2E_OWN_POLICY_SUITE=str(EXAMPLE),
+        DRIVEE2E_OWN_POLICY_SPLIT="train",
+        DRIVEE2E_OWN_POLICY_LIMIT="2",
+        DRIVEE2E_CACHE=os.environ.get("DRIVEE2E_CACHE", str(tmp_path / "cache")),
+    )
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "notebooks" / "own_policy.py")], capture_output=True, text=True, env=env, timeout=900
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = proc.stdout
+    assert "loaded route_follower -> waypoints" in out
+    assert "waypoints (2, 6, 2)" in out
+    for name in ("route_follower", "expert", "stop"):
+        assert f"{name} " in out and "(2 episodes)" in out
+    assert "episode status:" in out
+
+
 def test_public_evaluate_stays_a_function_after_its_module_is_imported():
     import drivee2e_jax as de
     import drivee2e_jax.evaluation  # noqa: F401  (a submodule import must not shadow de.evaluate)
