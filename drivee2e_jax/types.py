@@ -401,7 +401,9 @@ class Observation:
     """What the policy sees, rendered from the ego's current SIMULATED state.
 
     Ego-frame vectors have x forward, y left, metres. Optional sensor slots
-    (``bev``, ``lidar``) are ``None`` unless enabled in ``ObsConfig``.
+    (``bev``, ``lidar``) are ``None`` unless the policy lists them in
+    ``required_sensors`` or ``SimConfig.sensors`` enables them
+    (``observe/sensors.py``).
 
     Attributes:
       ego:            (4,) float32 [speed m/s, accel m/s^2, yaw_rate rad/s, steer rad].
@@ -421,8 +423,11 @@ class Observation:
       speed_limit:    () float32 speed limit of the lane the route runs on at the
                       ego's route position, m/s (CARLA agents' ``get_speed_limit``).
       privileged:     Privileged.
-      bev:            (H, W, C) float32 or None (sensor issue).
-      lidar:          (beams, channels) float32 or None (sensor issue).
+      bev:            (H, W) int32 bit-packed BEV channels (bit c = channel c of
+                      ``BevConfig.channels``; ``observe.bev.unpack_bits(bev, C)``
+                      gives (H, W, C) float32), or None.
+      lidar:          (C, Z) float32 LiDAR range image, m (channels x azimuth
+                      bins; ``observe.lidar``), or None.
     """
 
     ego: Array
