@@ -167,3 +167,15 @@ def test_second_call_replaces_files_atomically(tmp_path, monkeypatch):
     _no_temp_files(run)
     assert sorted(os.listdir(run)) == ["plots", "report.md", "run.json", "scenarios.csv", "summary.json"]
     assert json.loads((run / "run.json").read_text()) == RUN_INFO
+
+
+def test_atomic_write_gives_the_umask_mode_and_leaves_no_temp_file(tmp_path):
+    import os
+
+    old = os.umask(0o022)
+    try:
+        atomic_write_text(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(old)
+    assert (os.stat(tmp_path / "a.txt").st_mode & 0o777) == 0o644  # mkstemp alone gives 0o600
+    assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
