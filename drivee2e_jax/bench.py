@@ -35,7 +35,19 @@ class BenchConfig:
         filter + success rule; ``route_navigation`` = every scenario.
       repetitions: run each policy this many times with seeds seed,
         seed + 1, ...; rows carry a ``repetition`` column and the report
-        gives mean +- std over repetitions.
+        gives mean +- std over repetitions. All repetitions of a policy run
+        as one batched rollout (``evaluate(seeds=...)``).
+      policy_kwargs: per policy, keyword arguments of its ``make_policy``
+        (e.g. ``checkpoint``); () = none.  policy_names: per policy, the
+        name in the results ("" = the policy's own); () = own names.
+      gps_noise_std / compass_noise_std: observation noise, m / rad
+        (``ObsConfig``); seeded per repetition.
+      variant: suite variant (``scenario.variants.VARIANTS``): ``complete``,
+        or agents never visible from the ego's cameras along the logged run
+        removed (``visible_vehicles`` / ``visible_all``).
+      coordinator / num_processes / process_id: several processes
+        (``distributed.initialize``; None = env or one process): each rolls
+        out its part of the scenarios, process 0 gathers and writes.
     """
 
     suite: str = "twin15"
@@ -53,15 +65,30 @@ class BenchConfig:
     open_loop: bool = False
     task: str = "route_navigation"
     repetitions: int = 1
+    policy_kwargs: tuple[dict, ...] = ()
+    policy_names: tuple[str, ...] = ()
+    gps_noise_std: float = 0.0
+    compass_noise_std: float = 0.0
+    variant: str = "complete"
+    coordinator: str | None = None
+    num_processes: int | None = None
+    process_id: int | None = None
 
 
 def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict:
-    """Run, write ``results/<run>/`` and print the tables. Returns the summary."""
+    """Run, write ``results/<run>/`` and print the tables. Returns the summary
+    ({} on processes other than 0, which write and print nothing)."""
+    from drivee2e_jax import distributed
+
+    multi = distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)  # before any JAX work
+    if not distributed.is_root():
+        print_fn = _silent
     from drivee2e_jax.errors import DriveE2EError
     from drivee2e_jax.evaluation import evaluate
     from drivee2e_jax.policy import load_policy
     from drivee2e_jax.rollout import ControlTiming
     from drivee2e_jax.scenario import load_suite
+    from drivee2e_jax.scenario.variants import apply_variant, check_variant
     from drivee2e_jax.sim import SimConfig, score_preset
     from drivee2e_jax.tasks import add_task_success, apply_task, get_task
 
@@ -70,22 +97,33 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     if cfg.repetitions < 1:
         raise DriveE2EError(f"--repetitions must be >= 1, got {cfg.repetitions}")
     task = get_task(cfg.task)
+    check_variant(cfg.variant)
     suite = load_suite(cfg.suite)
     packed = apply_task(task, suite.pack(cfg.split))
-    policies = [load_policy(p) for p in cfg.policies]
+    variant = None
+    if cfg.variant != "complete":  # masks only for the scenarios run
+        rows = np.arange(min(len(packed), cfg.limit or len(packed)))
+        variant = apply_variant(packed.select(rows), cfg.variant, f"{suite.name}-{cfg.split}{_task_tag(task)}")
+        packed = variant.batch
+        print_fn(variant.summary())
+    policy_kwargs = cfg.policy_kwargs or tuple({} for _ in cfg.policies)
+    policy_names = cfg.policy_names or tuple("" for _ in cfg.policies)
+    if not len(policy_kwargs) == len(policy_names) == len(cfg.policies):
+        raise DriveE2EError("BenchConfig: policy_kwargs / policy_names need one entry per policy")
+    policies = [_named(load_policy(p, **kw), n) for p, kw, n in zip(cfg.policies, policy_kwargs, policy_names)]
     names = [p.name for p in policies]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise DriveE2EError(f"two policies are named {sorted(dup)[0]!r}; policy names must be unique in a run")
     try:
-        sim_cfg = SimConfig(dt=cfg.dt, score=score_preset(cfg.preset))
+        sim_cfg = SimConfig(dt=cfg.dt, score=score_preset(cfg.preset), obs=_obs_config(cfg))
         timing = ControlTiming(cfg.control_every, cfg.latency)
     except ValueError as e:
         raise DriveE2EError(str(e)) from e
 
     suite_tag = Path(cfg.suite).name if Path(cfg.suite).exists() else cfg.suite
-    task_tag = "" if task.name == "route_navigation" else f"-{task.name}"
-    out = cfg.out or Path("results") / f"{suite_tag}-{cfg.split}{task_tag}"
+    variant_tag = "" if variant is None else f"-{cfg.variant}"
+    out = cfg.out or Path("results") / f"{suite_tag}-{cfg.split}{_task_tag(task)}{variant_tag}"
     run_info = {
         "suite": cfg.suite,
         "suite_version": suite.version,
@@ -100,37 +138,48 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         "task": task.name,
         "repetitions": cfg.repetitions,
     }
-    run = RunDir(out, run_info, force=cfg.force)
+    if cfg.gps_noise_std or cfg.compass_noise_std:  # recorded only when used: older run.json stay resumable
+        run_info.update(gps_noise_std=cfg.gps_noise_std, compass_noise_std=cfg.compass_noise_std)
+    if variant is not None:  # recorded only when used: older run.json stay resumable
+        run_info.update(variant=cfg.variant, variant_removed={c: list(v) for c, v in variant.by_category.items()})
+    run, done = distributed.on_root(lambda: RunDir(out, run_info, force=cfg.force), lambda r: [n for n in names if r.done(n)])
+    shard = distributed.process_shard(run_info["num_scenarios"]) if multi else None
+    if multi and run_info["num_scenarios"] < distributed.process_count():
+        raise DriveE2EError(f"{run_info['num_scenarios']} scenarios for {distributed.process_count()} processes: "
+                            "use at most one process per scenario")
     print_fn(f"suite {suite.name} v{suite.version}, split {cfg.split}: {run_info['num_scenarios']} scenarios -> {out}")
 
-    for pol, path in zip(policies, cfg.policies):
-        if run.done(pol.name):
-            print_fn(f"[{pol.name}] already done in {run.policy_file(pol.name)} (resumed; --force to redo)")
+    for pol, path, kwargs in zip(policies, cfg.policies, policy_kwargs):
+        if pol.name in done:
+            if run is not None:
+                print_fn(f"[{pol.name}] already done in {run.policy_file(pol.name)} (resumed; --force to redo)")
             continue
-        rows, events, timing_info = [], {}, []
-        for rep in range(cfg.repetitions):
-            label = pol.name if cfg.repetitions == 1 else f"{pol.name} rep {rep + 1}/{cfg.repetitions}"
-            bar = _progress_bar(label, cfg.progress)
-            res = evaluate(
-                pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed + rep, limit=cfg.limit,
-                progress=bar.update, maps=suite.maps if "bev" in getattr(pol, "required_sensors", ()) else None,
-            )
-            bar.close()
-            if cfg.open_loop:
-                _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn)
-            add_task_success(task, res.rows)
-            if cfg.repetitions > 1:
-                for r in res.rows:
-                    r["repetition"] = rep
-            rows += res.rows
-            events.update({event_key(r): res.events[r["scenario_id"]] for r in res.rows})
-            timing_info.append({"compile_s": res.compile_s, "wall_s": res.wall_s, "steps": res.steps})
-            print_fn(
-                f"[{label}] {len(res.rows)} episodes, {res.steps} steps: compile+first chunk {res.compile_s:.1f} s, "
-                f"rollout {res.wall_s:.1f} s"
-            )
-        run.save_policy(pol.name, rows, events, {"policy_path": str(path), **timing_info[0], "runs": timing_info})
+        # All repetitions in one rollout (the batch tiled, keys as separate seeds would give).
+        seeds = None if cfg.repetitions == 1 else [cfg.seed + rep for rep in range(cfg.repetitions)]
+        label = pol.name if seeds is None else f"{pol.name} x{cfg.repetitions} reps"
+        bar = _progress_bar(label, cfg.progress and run is not None)
+        res = evaluate(
+            pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed, seeds=seeds, limit=cfg.limit,
+            progress=bar.update, maps=suite.maps if "bev" in getattr(pol, "required_sensors", ()) else None,
+            shard=shard,
+        )
+        bar.close()
+        res = distributed.gather_result(res)  # every process's rows (no-op in one process)
+        if cfg.open_loop and run is not None:
+            _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn)
+        add_task_success(task, res.rows)
+        events = {event_key(r): res.events[event_key(r)] for r in res.rows}
+        timing_info = {"compile_s": res.compile_s, "wall_s": res.wall_s, "steps": res.steps}
+        print_fn(
+            f"[{label}] {len(res.rows)} episodes, {res.steps} steps: compile+first chunk {res.compile_s:.1f} s, "
+            f"rollout {res.wall_s:.1f} s"
+        )
+        extra = {"policy_path": str(path), **timing_info, "runs": [timing_info]}
+        if run is not None:
+            run.save_policy(pol.name, res.rows, events, {**extra, "policy_kwargs": kwargs} if kwargs else extra)
 
+    if run is None:  # not process 0: process 0 writes the results
+        return {}
     rows_by_policy = {n: run.load_policy(n)["rows"] for n in names}
     summary = summarize(rows_by_policy, run_info)
     run.write_tables(names, summary, ep.COUNT_COLUMNS)
@@ -141,6 +190,31 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     report = write_report(out)
     print_fn(f"\nper-scenario results: {out / 'scenarios.csv'}, summary: {out / 'summary.json'}, report: {report}")
     return summary
+
+
+def _silent(_line: str) -> None:
+    """``print_fn`` of processes other than 0."""
+
+
+def _task_tag(task) -> str:
+    return "" if task.name == "route_navigation" else f"-{task.name}"
+
+
+def _named(pol, name: str):
+    """``pol`` under the result name ``name`` ("" = unchanged)."""
+    if not name or name == pol.name:
+        return pol
+    if dataclasses.is_dataclass(pol) and "name" in {f.name for f in dataclasses.fields(pol)}:
+        return dataclasses.replace(pol, name=name)
+    pol.name = name  # a fresh object per load_policy call: nothing else sees it
+    return pol
+
+
+def _obs_config(cfg: BenchConfig):
+    """The default ``ObsConfig`` with the run's observation noise."""
+    from drivee2e_jax.observe.vector import ObsConfig
+
+    return dataclasses.replace(ObsConfig(), gps_noise_std=cfg.gps_noise_std, compass_noise_std=cfg.compass_noise_std)
 
 
 #: Per-scenario open-loop columns (``openloop.evaluate_openloop``).
@@ -321,7 +395,8 @@ def ability_scores(rows: list[dict]) -> dict:
 
 
 def _finite(v) -> bool:
-    return v is not None and not math.isnan(float(v))
+    # "" = a blank CSV cell (rows read back by io.report.load_rows: an all-blank column stays text)
+    return v is not None and v != "" and not math.isnan(float(v))
 
 
 def _fine_means(rows: list[dict]) -> dict:

@@ -9,16 +9,17 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from drivee2e_jax.io.results import event_key
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.metrics import finegrained
 from drivee2e_jax.observe import sensors
-from drivee2e_jax.rollout import ControlTiming, Rollout
+from drivee2e_jax.rollout import ControlTiming, Rollout, shard_rollout_inputs
 from drivee2e_jax.sim import Simulator, SimConfig
 
 
@@ -52,10 +53,13 @@ def evaluate(
     config: SimConfig | None = None,
     timing: ControlTiming | None = None,
     seed: int = 0,
+    seeds: Sequence[int] | None = None,
     limit: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     chunk: int = 50,
     maps: dict | None = None,
+    devices: Sequence | None = None,
+    shard: Sequence[int] | None = None,
 ) -> EvalResult:
     """Roll ``policy`` out on every scenario of ``suite``'s ``split`` at once.
 
@@ -67,6 +71,18 @@ def evaluate(
       progress: ``progress(done_steps, total_steps)`` after every chunk.
       maps: {map_id: MapRecord}, needed for the BEV when ``suite`` is a
         ``PackedBatch`` (a ``Suite`` provides its own).
+      seeds: repetitions in ONE rollout: the batch is tiled ``len(seeds)``
+        times and repetition r's scenarios get the keys
+        ``evaluate(seed=seeds[r])`` would give them, so its rows equal that
+        call's (tested); rows carry ``repetition`` = r and events are keyed
+        ``io.results.event_key(row)``. ``params`` are initialised once, from
+        ``seeds[0]`` (pass ``params=`` if a policy's init depends on the key).
+      devices: the batch is split over these (default: this process's
+        ``jax.local_devices()``), padded with copies of a real scenario to a
+        multiple of their number; padding rows are dropped, never scored.
+      shard: evaluate only these rows of the split (after ``limit``), each
+        with the PRNG key the whole split's run gives it, so the rows equal
+        that run's (``distributed.process_shard``: one process's part).
 
     Sensors: ``config.sensors`` plus every sensor the policy lists in
     ``required_sensors`` (``with_policy_sensors``).
@@ -74,6 +90,15 @@ def evaluate(
     packed = suite.pack(split) if hasattr(suite, "pack") else suite
     if limit is not None:
         packed = packed.select(np.arange(min(limit, len(packed))))
+    n_split = len(packed)
+    index = np.arange(n_split) if shard is None else np.asarray(shard, np.int64)
+    if shard is not None:
+        packed = packed.select(index)
+    n_scn = len(packed)
+    if seeds is not None:
+        seeds = [int(s) for s in seeds]
+        seed = seeds[0]
+        packed = packed.select(np.tile(np.arange(n_scn), len(seeds)))
     cfg = with_policy_sensors(config or SimConfig(), policy)
     if cfg.sensors.bev is not None and maps is None:
         if not hasattr(suite, "maps"):
@@ -85,36 +110,36 @@ def evaluate(
     key = jax.random.PRNGKey(seed)
     if params is None:
         params = _init_params(policy, sim, batch, key, assets)
-    ro = Rollout(sim, policy, params, timing=timing, chunk=chunk, assets=assets)
     b = int(batch.ego_index.shape[0])
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
 
     t0 = time.perf_counter()
-    keys = jax.random.split(key, b)
-    carry = ro.init(batch, keys)
-    carry, first = ro.advance(batch, carry)
+    keys = _scenario_keys(key, n_split, index) if seeds is None else _repetition_keys(seeds, n_split, index)
+    run_batch, keys, run_assets = shard_rollout_inputs(batch, keys, assets, devices)
+    ro = Rollout(sim, policy, params, timing=timing, chunk=chunk, assets=run_assets)
+    carry = ro.init(run_batch, keys)
+    carry, first = ro.advance(run_batch, carry)
     jax.block_until_ready(carry)
     compile_s = time.perf_counter() - t0  # includes one chunk of stepping
 
     t1 = time.perf_counter()
-    logs = [jax.tree_util.tree_map(np.asarray, first)]
+    logs = [_head(first, b)]
     steps = chunk
     if progress:
         progress(min(steps, total), total)
     while steps < total and not bool(np.all(np.asarray(carry.sim.episode.done))):
-        carry, log = ro.advance(batch, carry)
-        logs.append(jax.tree_util.tree_map(np.asarray, log))
+        carry, log = ro.advance(run_batch, carry)
+        logs.append(_head(log, b))
         steps += chunk
         if progress:
             progress(min(steps, total), total)
-    results = jax.tree_util.tree_map(np.asarray, jax.vmap(ep.finalize, in_axes=(0, 0, None))(
-        carry.sim.episode, batch.route, sim.config.score
-    ))
+    results = _head(jax.vmap(ep.finalize, in_axes=(0, 0, None))(carry.sim.episode, run_batch.route, sim.config.score), b)
     wall_s = time.perf_counter() - t1
-    limit_kmh = _route_mean(np.asarray(carry.sim.ctx.speed_limit), np.asarray(batch.route.valid)) * 3.6
+    limit_kmh = _route_mean(_head(carry.sim.ctx.speed_limit, b), np.asarray(batch.route.valid)) * 3.6
     stacked = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *logs)
     per_scn = (compile_s + wall_s) / max(b, 1)
-    rows, events = _rows_and_events(policy.name, meta, batch, results, stacked, sim.config, per_scn, limit_kmh)
+    reps = None if seeds is None else np.repeat(np.arange(len(seeds)), n_scn)
+    rows, events = _rows_and_events(policy.name, meta, batch, results, stacked, sim.config, per_scn, limit_kmh, reps)
     return EvalResult(rows=rows, events=events, logs=stacked, compile_s=compile_s, wall_s=wall_s, steps=min(steps, total))
 
 
@@ -150,7 +175,24 @@ def _route_mean(values, valid):
     return np.where(valid, values, 0.0).sum(axis=1) / np.maximum(valid.sum(axis=1), 1)
 
 
-def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_scenario, limit_kmh):
+def _scenario_keys(key, n_split: int, index):
+    """(len(index), 2) keys of rows ``index`` of an ``n_split``-scenario split:
+    ``split(key, n_split)[index]``, so a shard's rows get the whole run's keys."""
+    return jax.random.split(key, n_split)[np.asarray(index)]
+
+
+def _repetition_keys(seeds: Sequence[int], n_split: int, index):
+    """(len(seeds) * len(index), 2) per-scenario keys: repetition r's block is
+    ``_scenario_keys(PRNGKey(seeds[r]), n_split, index)``."""
+    return jnp.concatenate([_scenario_keys(jax.random.PRNGKey(s), n_split, index) for s in seeds])
+
+
+def _head(tree, n: int):
+    """``tree`` as numpy with only its first ``n`` rows (drops the padding rows of a sharded batch)."""
+    return jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], tree)
+
+
+def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_scenario, limit_kmh, reps=None):
     rows, events = [], {}
     route_len = np.asarray(batch.route.length)
     fine_rows = finegrained.batch_columns(
@@ -187,6 +229,8 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
             # Undefined values (NaN) are null in JSON and empty in CSV.
             **{k: (round(v, 4) if np.isfinite(v) else None) for k, v in fine.items()},
         }
+        if reps is not None:
+            row["repetition"] = int(reps[i])
         rows.append(row)
-        events[m["scenario_id"]] = ep.extract_events(log_i)
+        events[event_key(row)] = ep.extract_events(log_i)
     return rows, events

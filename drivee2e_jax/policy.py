@@ -87,7 +87,15 @@ def load_policy(path: str | Path, **kwargs) -> Policy:
     except Exception as e:  # a user's file: report, don't crash
         raise DriveE2EError(f"{path}: importing the policy failed: {type(e).__name__}: {e}") from e
     if hasattr(module, "make_policy"):
+        import inspect
+
+        try:
+            inspect.signature(module.make_policy).bind(**kwargs)
+        except TypeError as e:
+            raise DriveE2EError(f"{path}: make_policy does not take {sorted(kwargs)}: {e}") from e
         pol = module.make_policy(**kwargs)
+    elif kwargs:
+        raise DriveE2EError(f"{path}: arguments {sorted(kwargs)} given, but the file defines no make_policy(**kwargs)")
     elif hasattr(module, "policy"):
         pol = module.policy
     else:

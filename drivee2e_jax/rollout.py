@@ -84,7 +84,7 @@ class Rollout:
         # index is per scenario; the policy params are broadcast.
         ax = sensors.assets_axes(assets)
         self.init = jax.jit(jax.vmap(self._init_one, in_axes=(0, 0, ax, None)))
-        self.init = _with_params(self.init, lambda: (self.assets, self.params))
+        self.init = _laid_out_like_batch(_with_params(self.init, lambda: (self.assets, self.params)))
         self.advance = jax.jit(jax.vmap(self._advance_one, in_axes=(0, 0, ax, None)))
         self.advance = _with_params(self.advance, lambda: (self.assets, self.params))
 
@@ -157,16 +157,65 @@ def _with_params(fn, get_extra):
     return call
 
 
-def shard_batch(batch, devices=None):
+def _laid_out_like_batch(init):
+    """``init`` with its carry placed like the batch: over a sharded batch XLA
+    replicates the initial carry's constant leaves, and ``advance`` would then
+    compile a second time for the carry it returns itself."""
+
+    def call(batch, keys):
+        carry = init(batch, keys)
+        placed = batch.ego_index
+        if isinstance(placed, jax.Array) and not isinstance(placed, jax.core.Tracer):  # numpy or traced: as is
+            carry = jax.device_put(carry, placed.sharding)
+        return carry
+
+    call.lower = init.lower
+    return call
+
+
+def shard_batch(batch, devices=None, *, replicate: bool = False):
     """Place a batched pytree with its leading axis split over ``devices``.
 
-    The batch size must be divisible by the device count (pad the batch with
-    ``scenario.pack`` sizes or drop the remainder). With one device this is a
-    plain ``device_put``. jit then runs each shard where it lives.
+    The batch size must be divisible by the device count (``pad_rows``).
+    With one device this is a plain ``device_put``. jit then runs each shard
+    where it lives. ``replicate``: a full copy on every device instead (tables
+    every scenario reads, e.g. the sensors' map rasters).
     """
-    devices = devices or jax.devices()
+    devices = list(devices or jax.devices())
     if len(devices) == 1:
         return jax.device_put(batch, devices[0])
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-    spec = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-    return jax.device_put(batch, spec)
+    spec = jax.sharding.PartitionSpec() if replicate else jax.sharding.PartitionSpec("batch")
+    return jax.device_put(batch, jax.sharding.NamedSharding(mesh, spec))
+
+
+def pad_rows(batch, multiple: int):
+    """``batch`` (leading axis B) padded to a multiple of ``multiple`` rows with
+    copies of row 0: padding rows are real scenarios, so they step and finish
+    like one, and never change the batch's episode length. Callers drop rows >= B."""
+    b = int(jax.tree_util.tree_leaves(batch)[0].shape[0])
+    pad = -b % multiple
+    if not pad:
+        return batch
+    rows = np.concatenate([np.arange(b), np.zeros(pad, np.int64)])
+    return jax.tree_util.tree_map(lambda a: a[rows], batch)
+
+
+def shard_rollout_inputs(batch: Scenario, keys, assets, devices=None):
+    """The rollout's inputs padded (``pad_rows``) to a multiple of the device
+    count and split over ``devices`` (default: this process's devices).
+
+    Args:
+      batch: ``Scenario`` with leading axis B.  keys: (B, 2) PRNG keys.
+      assets: ``sensors.SensorAssets`` or None; the raster table is
+        replicated, ``map_index`` (B,) split with the batch.
+
+    Returns (batch, keys, assets) with B' >= B rows; results have B' rows too:
+    keep the first B.
+    """
+    devices = list(devices or jax.local_devices())
+    batch, keys = shard_batch(pad_rows((batch, keys), len(devices)), devices)
+    if assets is not None:
+        assets = assets.replace(raster=shard_batch(assets.raster, devices, replicate=True),
+                                map_index=shard_batch(pad_rows(assets.map_index, len(devices)), devices))
+    return batch, keys, assets

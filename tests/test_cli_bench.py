@@ -114,3 +114,32 @@ def test_open_loop_columns_fine_grained_metrics_and_report(suite_dir, tmp_path, 
     assert o["openloop_samples"] > 0 and "l2_2s_uniad" in o and "smoothness_pct" in o
     report = (out / "report.md").read_text()
     assert "constant_velocity" in report and (out / "plots" / "sr_by_behavior.png").stat().st_size > 1000
+
+
+def test_policy_spec_with_make_policy_arguments_and_a_result_name(tmp_path):
+    from drivee2e_jax.cli.bench import parse_policy_spec
+    from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.policy import load_policy
+
+    f = tmp_path / "p.py"
+    f.write_text(
+        "from drivee2e_jax.policy import StatelessPolicy\n"
+        "class P(StatelessPolicy):\n"
+        "    def __init__(self, gain, tag):\n"
+        "        self.gain, self.tag = gain, tag\n"
+        "def make_policy(gain=1.0, tag='a'):\n"
+        "    return P(gain, tag)\n"
+    )
+    path, kwargs, name = parse_policy_spec(f"{f}:gain=2.5,tag=runs/x,name=mine")
+    assert (path, kwargs, name) == (f, {"gain": 2.5, "tag": "runs/x"}, "mine")  # JSON when it parses, else text
+    pol = load_policy(path, **kwargs)
+    assert (pol.gain, pol.tag) == (2.5, "runs/x")
+    with pytest.raises(DriveE2EError, match="make_policy does not take"):
+        load_policy(path, bogus=1)
+    with pytest.raises(DriveE2EError, match="expected PATH:key=value"):
+        parse_policy_spec(f"{f}:gain")
+    plain = tmp_path / "plain.py"
+    plain.write_text(f.read_text().replace("def make_policy(gain=1.0, tag='a'):\n    return P(gain, tag)\n",
+                                           "policy = P(1.0, 'a')\n"))
+    with pytest.raises(DriveE2EError, match="defines no make_policy"):
+        load_policy(plain, gain=2.0)

@@ -13,6 +13,9 @@ examples:
   drivee2e bench --suite path/to/suite --policy my_policy.py --control-every 2 --latency 1
   drivee2e bench --open-loop --policy constant_velocity --policy expert --out results/ol
   drivee2e bench --task lane_following --policy expert --repetitions 3
+  drivee2e bench --variant visible_vehicles --policy log_replay --policy expert
+  drivee2e bench --policy policies/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3 --policy stop
+  drivee2e bench --coordinator 10.0.0.1:4000 --num-processes 2 --process-id 0   # and --process-id 1 elsewhere
 
 Reference policies can be named without a path: log_replay, expert, stop,
 constant_velocity. --open-loop adds L2 at 1/2/3 s (ST-P3 and UniAD
@@ -22,7 +25,11 @@ every scenario), driving_in_traffic (scenarios with a logged vehicle ahead;
 success also needs never < 6 m behind it), lane_following (straight routes,
 other agents and signals removed; success also needs lane deviation <= 0.5 m
 and average speed 0.7-1.1 x the speed limit); see drivee2e_jax/tasks.py.
-Results go to results/<suite>-<split>[-<task>]/ unless --out is given; a rerun resumes
+--variant re-evaluates the split with the agents never visible from the ego's
+cameras along the logged run removed: visible_vehicles (vehicles only) or
+visible_all (every category); complete (default) = as recorded. The masks are
+computed once per split and cached (scenario/variants.py).
+Results go to results/<suite>-<split>[-<task>][-<variant>]/ unless --out is given; a rerun resumes
 (finished policies are skipped) and never overwrites without --force.
 """
 
@@ -47,7 +54,8 @@ def add_parser(subparsers) -> None:
         action="append",
         dest="policies",
         metavar="P",
-        help="policy file (.py) or reference policy name; repeatable (default: log_replay, expert, stop)",
+        help="policy file (.py) or reference policy name, optionally with make_policy arguments as "
+        "P:key=value,... (name=... renames it in the results); repeatable (default: log_replay, expert, stop)",
     )
     p.add_argument("--out", type=Path, default=None, help="results folder (default: results/<suite>-<split>)")
     p.add_argument("--force", action="store_true", help="overwrite an existing results folder")
@@ -75,8 +83,44 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("--repetitions", type=int, default=1, metavar="N",
                    help="run each policy N times (seeds seed..seed+N-1); report gives mean ± std (default: 1)")
+    p.add_argument("--variant", default="complete", metavar="NAME",
+                   help="suite variant: complete, visible_vehicles or visible_all (agents never visible from the "
+                        "ego's cameras along the logged run removed; default: complete)")
+    p.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="several processes (jax.distributed): process 0's address, or 'auto' on SLURM / Open MPI "
+                        "(default: $DRIVEE2E_COORDINATOR, else one process); docs/scaling.md")
+    p.add_argument("--num-processes", type=int, default=None, metavar="N",
+                   help="processes in the run (default: $DRIVEE2E_NUM_PROCESSES)")
+    p.add_argument("--process-id", type=int, default=None, metavar="I",
+                   help="this process, 0..N-1; process 0 writes the results (default: $DRIVEE2E_PROCESS_ID)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def parse_policy_spec(spec: str) -> tuple[Path, dict, str]:
+    """``PATH_OR_NAME[:key=value,...]`` -> (policy file, ``make_policy`` kwargs,
+    result name). Values are JSON when they parse (numbers, true, lists), else
+    text; the key ``name`` renames the policy in the results instead.
+
+    Example: ``policies/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3``.
+    """
+    import json
+
+    from drivee2e_jax.errors import DriveE2EError
+
+    head, sep, tail = spec.partition(":")
+    kwargs: dict = {}
+    if sep:
+        for item in filter(None, tail.split(",")):
+            key, eq, value = item.partition("=")
+            if not eq or not key.strip().isidentifier():
+                raise DriveE2EError(f"--policy {spec}: expected PATH:key=value[,key=value...], got {item!r}")
+            try:
+                kwargs[key.strip()] = json.loads(value)
+            except ValueError:
+                kwargs[key.strip()] = value
+    name = kwargs.pop("name", "")
+    return resolve_policy_path(head), kwargs, str(name)
 
 
 def resolve_policy_path(spec: str) -> Path:
@@ -104,10 +148,13 @@ def reference_policy_dir() -> Path:
 def run(args) -> int:
     from drivee2e_jax.bench import BenchConfig, run_bench
 
+    specs = [parse_policy_spec(p) for p in (args.policies or DEFAULT_POLICIES)]
     cfg = BenchConfig(
         suite=args.suite,
         split=args.split,
-        policies=tuple(str(resolve_policy_path(p)) for p in (args.policies or DEFAULT_POLICIES)),
+        policies=tuple(str(path) for path, _, _ in specs),
+        policy_kwargs=tuple(kw for _, kw, _ in specs),
+        policy_names=tuple(name for _, _, name in specs),
         out=args.out,
         force=args.force,
         preset=args.preset,
@@ -120,6 +167,10 @@ def run(args) -> int:
         open_loop=args.open_loop,
         task=args.task,
         repetitions=args.repetitions,
+        variant=args.variant,
+        coordinator=args.coordinator,
+        num_processes=args.num_processes,
+        process_id=args.process_id,
     )
     run_bench(cfg, print_fn=print)
     return 0

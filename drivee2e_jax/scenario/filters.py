@@ -19,6 +19,10 @@ track has no sample counts for nothing (only sampled steps can be seen).
 
     from drivee2e_jax.scenario.filters import filter_invisible
     variant = filter_invisible(suite_records, {s_id: mask, ...}, categories="vehicles")
+
+``filter_invisible_packed`` does the same to a packed batch (one (B, A, T)
+mask in the batch's own rows) and returns exactly what packing the filtered
+records with the same sizes gives: kept rows move up, freed rows are padding.
 """
 
 from __future__ import annotations
@@ -28,11 +32,13 @@ from typing import Literal, Mapping
 
 import numpy as np
 
+from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.pack import track_order
+from drivee2e_jax.scenario.pack import LEAVES, PackedBatch, flatten_scenario, track_order, unflatten_scenario
 from drivee2e_jax.scenario.records import CATEGORIES, ScenarioRecord, SuiteRecord
 
-__all__ = ["FILTER_CATEGORIES", "KEPT_WHEN_VEHICLES", "filter_invisible", "never_visible"]
+__all__ = ["FILTER_CATEGORIES", "KEPT_WHEN_VEHICLES", "filter_invisible", "filter_invisible_packed",
+           "never_visible", "removable_categories"]
 
 #: Which agents ``filter_invisible`` may remove.
 FILTER_CATEGORIES = ("vehicles", "all")
@@ -78,8 +84,7 @@ def filter_invisible(suite: SuiteRecord, visible: Mapping[str, np.ndarray],
       "removed": {scenario_id: [track ids]}}`` (scenarios with nothing removed
       are left out of ``removed``).
     """
-    if categories not in FILTER_CATEGORIES:
-        raise DriveE2EError(f"categories: expected one of {', '.join(FILTER_CATEGORIES)}, got {categories!r}")
+    removable = removable_categories(categories)
     ids = {s.scenario_id for s in suite.scenarios}
     missing = [s.scenario_id for s in suite.scenarios if s.scenario_id not in visible]
     if missing:
@@ -88,7 +93,6 @@ def filter_invisible(suite: SuiteRecord, visible: Mapping[str, np.ndarray],
     extra = sorted(set(visible) - ids)
     if extra:
         raise DriveE2EError(f"visible: scenario {extra[0]!r} is not in suite {suite.name!r}")
-    removable = set(CATEGORIES) - (set(KEPT_WHEN_VEHICLES) if categories == "vehicles" else set())
     scenarios, removed = [], {}
     for s in suite.scenarios:
         unseen = set(never_visible(s, visible[s.scenario_id]))
@@ -96,8 +100,62 @@ def filter_invisible(suite: SuiteRecord, visible: Mapping[str, np.ndarray],
         if drop:
             removed[s.scenario_id] = sorted(drop)
         scenarios.append(replace(s, tracks=[tr for tr in s.tracks if tr.track_id not in drop]))
-    record = {"filter": "invisible", "categories": categories,
-              "removed_tracks": sum(len(v) for v in removed.values()), "removed": removed}
     meta = dict(suite.meta)
-    meta["filters"] = [*meta.get("filters", []), record]
+    meta["filters"] = [*meta.get("filters", []), _filter_record(categories, removed)]
     return replace(suite, scenarios=scenarios, meta=meta)
+
+
+def removable_categories(categories: str) -> tuple[str, ...]:
+    """The category names ``filter_invisible(..., categories)`` may remove."""
+    if categories not in FILTER_CATEGORIES:
+        raise DriveE2EError(f"categories: expected one of {', '.join(FILTER_CATEGORIES)}, got {categories!r}")
+    return tuple(c for c in CATEGORIES if categories == "all" or c not in KEPT_WHEN_VEHICLES)
+
+
+def _filter_record(categories: str, removed: dict[str, list[int]]) -> dict:
+    return {"filter": "invisible", "categories": categories,
+            "removed_tracks": sum(len(v) for v in removed.values()), "removed": removed}
+
+
+def filter_invisible_packed(batch: PackedBatch, visible: np.ndarray,
+                            categories: Literal["vehicles", "all"] = "vehicles") -> tuple[PackedBatch, dict]:
+    """``filter_invisible`` on a packed batch.
+
+    Args:
+      batch: the batch (not modified).
+      visible: (B, A, T) bool in the batch's rows and padded sizes (row b,
+        agent row a, log step k); only steps where the agent is valid count.
+      categories: as for ``filter_invisible``.
+
+    Returns:
+      (the filtered batch, same padded sizes and meta except ``num_agents``:
+      kept agent rows keep their order and move up, freed rows become
+      padding, bit for bit what ``pack`` of the filtered records gives;
+      the filter record of ``filter_invisible``'s ``meta["filters"]``).
+    """
+    codes = [int(types.Category[c.upper()]) for c in removable_categories(categories)]
+    flat = {k: np.asarray(v) for k, v in flatten_scenario(batch.scenario).items()}
+    valid = flat["tracks.valid"]
+    vis = np.asarray(visible)
+    if vis.shape != valid.shape or vis.dtype != bool:
+        raise DriveE2EError(f"visible: expected a bool array of shape {valid.shape} (batch, agents, steps), "
+                            f"got {vis.dtype} {vis.shape}")
+    b, a = valid.shape[:2]
+    ego = flat["ego_index"].astype(np.int64)
+    drop = valid.any(-1) & ~(vis & valid).any(-1) & np.isin(flat["tracks.category"], codes)
+    drop[np.arange(b), ego] = False
+    order = np.argsort(drop, axis=1, kind="stable")  # kept rows first (in order), dropped rows last
+    freed = np.arange(a)[None, :] >= (a - drop.sum(1))[:, None]
+    for name, (axes, _, pad) in LEAVES.items():
+        if name.startswith("tracks."):
+            leaf = flat[name]
+            idx = order.reshape(order.shape + (1,) * (leaf.ndim - 2))
+            leaf = np.take_along_axis(leaf, idx, axis=1)
+            leaf[freed] = pad
+            flat[name] = leaf
+    flat["ego_index"] = np.argmax(order == ego[:, None], axis=1).astype(flat["ego_index"].dtype)
+    track_id = np.asarray(batch.scenario.tracks.track_id)
+    removed = {str(sid): sorted(int(t) for t in track_id[i][drop[i]])
+               for i, sid in enumerate(batch.meta.scenario_id) if drop[i].any()}
+    meta = replace(batch.meta, num_agents=(batch.meta.num_agents - drop.sum(1)).astype(batch.meta.num_agents.dtype))
+    return PackedBatch(unflatten_scenario(flat).validate(), meta), _filter_record(categories, removed)
