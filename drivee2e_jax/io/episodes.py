@@ -1,0 +1,776 @@
+"""Episode traces: re-simulate scenarios of a results folder into host-side arrays.
+
+A results folder (``drivee2e bench``, see ``io.results``) stores per-scenario
+rows and infraction events, not trajectories. Rollouts are deterministic, so
+``trace_episodes(results_dir)`` re-runs the chosen episodes with the run's
+exact settings (suite, split, task, limit, dt, control timing, preset, seed:
+the same PRNG key per scenario and the same policy parameters as the bench)
+and returns one :class:`EpisodeTrace` per episode: numpy arrays for the
+episode player (``to_jsonable``) and the MCAP export (``io.mcap_export``).
+The re-simulated Driving Score is checked against the stored one
+(``EpisodeTrace.reproduced``; a mismatch warns).
+
+What is reproduced from ``run.json`` / the policy file: suite (+ version
+check), split, task, limit, variant, dt, preset, control timing, observation
+noise, seed (repetition 0), ``policy_path`` + ``policy_kwargs``.
+
+Time axis: index ``k`` of every per-step array is the state at
+``times[k] = k * dt`` s, ``k = 0`` the reset state (the ego on its logged
+start pose) up to the step that ended the episode (``T = steps + 1``).
+Conventions per field group:
+
+* state fields (ego pose, agents, signals, sensors, ``route_completion``,
+  ``speed``) describe the instant ``times[k]``;
+* action fields (``controls``, ``plan_xy``) are what the policy applied FROM
+  state k (during the step k -> k+1); the last state has none (zeros /
+  ``plan_valid`` False);
+* ``timeline`` facts and events describe the step that ENDED at ``times[k]``
+  (index 0 is empty: zeros).
+
+Frames and units as in ``types``: world x east, y north, m; yaw CCW from +x,
+rad; s; m/s. Sensors are rendered from the ego's SIMULATED state with the
+trace's own ``SensorConfig`` (``observe.bev`` / ``observe.lidar``), whatever
+the policy itself saw.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import json
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from drivee2e_jax.errors import DriveE2EError
+
+#: Sensors a trace can render (``trace_episodes(sensors=...)``).
+TRACE_SENSORS = ("bev", "lidar")
+#: |re-simulated - stored| Driving Score above which a trace counts as not reproduced.
+DS_TOLERANCE = 1e-3
+
+
+def default_sensor_config(sensors: Sequence[str] = TRACE_SENSORS):
+    """The trace's ``SensorConfig``: 128x128 BEV at 0.5 m/px (default channels)
+    and a light 16-channel x 180-bin LiDAR (2880 beams; a file per episode
+    stays ~10 MB), only those named in ``sensors``."""
+    from drivee2e_jax.observe.bev import BevConfig
+    from drivee2e_jax.observe.lidar import LidarConfig
+    from drivee2e_jax.observe.sensors import SensorConfig
+
+    bad = [s for s in sensors if s not in TRACE_SENSORS]
+    if bad:
+        raise DriveE2EError(f"sensors: unknown {bad[0]!r}; expected some of {', '.join(TRACE_SENSORS)}")
+    return SensorConfig(
+        bev=BevConfig() if "bev" in sensors else None,
+        lidar=LidarConfig(channels=16, azimuth_bins=180) if "lidar" in sensors else None,
+    )
+
+
+# --------------------------------------------------------------------------
+# The trace
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class StaticMap:
+    """The episode's static map, padding removed (world frame, m).
+
+    Attributes:
+      lanes:            list of L arrays (N_i, 2), lane centrelines in driving direction.
+      lane_type:        (L,) int ``types.LaneType``.
+      lane_speed_limit: (L,) float m/s.
+      boundaries:       list of E arrays (N_i, 2), lane boundaries and road edges.
+      boundary_marking: (E,) int ``types.Marking``.
+      crosswalks:       list of C polygons (V_i, 2).
+      stop_lines:       (S, 2, 2) float segment end points (valid lines only).
+      stop_line_row:    (S,) int the line's row in the packed map (what a
+                        ``red_light`` event's ``stop_line`` refers to).
+      stop_line_lane:   (S,) int row of the lane the line guards (-1 none).
+      drivable:         list of G polygons (V_i, 2), the drivable area.
+      obstacles:        list of O polygons (V_i, 2), static obstacle footprints.
+      obstacle_height:  (O,) float m.
+    """
+
+    lanes: list
+    lane_type: np.ndarray
+    lane_speed_limit: np.ndarray
+    boundaries: list
+    boundary_marking: np.ndarray
+    crosswalks: list
+    stop_lines: np.ndarray
+    stop_line_row: np.ndarray
+    stop_line_lane: np.ndarray
+    drivable: list
+    obstacles: list
+    obstacle_height: np.ndarray
+
+
+@dataclasses.dataclass
+class AgentsTrace:
+    """Every non-ego logged agent replayed at the trace's times (``replay.agents_at``).
+
+    Attributes:
+      track_id: (A,) int source track id.   category: (A,) int ``types.Category``.
+      size:     (A, 3) float length, width, height, m.
+      xy:       (T, A, 2) float box centre, m.   yaw: (T, A) float rad.
+      vel:      (T, A, 2) float world-frame velocity, m/s.
+      valid:    (T, A) bool the agent exists at times[k] (values are
+                finite but meaningless where False).
+    """
+
+    track_id: np.ndarray
+    category: np.ndarray
+    size: np.ndarray
+    xy: np.ndarray
+    yaw: np.ndarray
+    vel: np.ndarray
+    valid: np.ndarray
+
+
+@dataclasses.dataclass
+class EpisodeTrace:
+    """One re-simulated episode (module docstring: time axis conventions).
+
+    Attributes:
+      scenario_id, policy: names.   meta: {split, intersection_id, map_id,
+        behavior, weather, time_of_day}.
+      row: the stored per-scenario results row (``io.results`` columns).
+      dt: sim step, s.   times: (T,) float s, ``k * dt``.
+      ego_size: (3,) float length, width, height, m.
+      ego_xy: (T, 2) m.  ego_yaw: (T,) rad.  ego_speed: (T,) m/s.
+      ego_accel: (T,) m/s^2.  ego_steer: (T,) front-wheel angle, rad.
+      ego_yaw_rate: (T,) rad/s.
+      controls: (T, 3) float applied throttle [0,1], brake [0,1], steer [-1,1].
+      plan_xy: (T, K, 2) float the policy's waypoints in the WORLD frame, m
+        (None for a controls policy).   plan_valid: (T,) bool.
+      agents: AgentsTrace.
+      signals: (T, S) int ``types.SignalState`` per valid stop line
+        (columns as ``map.stop_lines``).
+      map: StaticMap.
+      route_xy: (R, 2) m.  route_arc: (R,) m.  route_command: (R,) int ``types.Command``.
+      route_length: m.
+      timeline: {name: (T,) array} per-step metric timelines: ``speed`` m/s,
+        ``route_completion`` %, ``facts.<f>`` for every scalar
+        ``infractions.StepFacts`` field (``lane_offset``, ``front_distance`` m
+        may be inf), ``events.<e>`` for every ``metrics.episode.StepEvents`` field.
+      events: the stored infraction events (type, t s, x, y m, ...).
+      resim_events: the same extracted from the re-simulation.
+      driving_score, stored_driving_score: re-simulated and stored DS.
+      reproduced: |difference| <= DS_TOLERANCE.
+      bev: {channel: (T, H, W) bool} or None; image row 0 is farthest ahead,
+        column 0 on the ego's left (``observe.bev``).  bev_resolution: m/px.
+      lidar_points: (T, N, 3) float32 returns in the ego frame (origin at the
+        box centre on the ground, x forward, y left, z up), m, or None.
+      lidar_class: (T, N) int8 hit class (``observe.lidar``: 1 ground,
+        2 obstacle, 3 + Category agents).  lidar_valid: (T, N) bool.
+    """
+
+    scenario_id: str
+    policy: str
+    meta: dict
+    row: dict
+    dt: float
+    times: np.ndarray
+    ego_size: np.ndarray
+    ego_xy: np.ndarray
+    ego_yaw: np.ndarray
+    ego_speed: np.ndarray
+    ego_accel: np.ndarray
+    ego_steer: np.ndarray
+    ego_yaw_rate: np.ndarray
+    controls: np.ndarray
+    plan_xy: np.ndarray | None
+    plan_valid: np.ndarray
+    agents: AgentsTrace
+    signals: np.ndarray
+    map: StaticMap
+    route_xy: np.ndarray
+    route_arc: np.ndarray
+    route_command: np.ndarray
+    route_length: float
+    timeline: dict
+    events: list
+    resim_events: list
+    driving_score: float
+    stored_driving_score: float
+    reproduced: bool
+    bev: dict | None = None
+    bev_resolution: float | None = None
+    lidar_points: np.ndarray | None = None
+    lidar_class: np.ndarray | None = None
+    lidar_valid: np.ndarray | None = None
+
+    @property
+    def num_steps(self) -> int:
+        """T, the number of traced instants (steps + 1)."""
+        return int(self.times.shape[0])
+
+
+# --------------------------------------------------------------------------
+# Reading the results folder
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class RunRecord:
+    """What ``trace_episodes`` needs from a results folder."""
+
+    path: Path
+    info: dict  # run.json
+    policy: str
+    data: dict  # policies/<policy>.json
+
+
+def read_run(results_dir: str | Path, policy: str | None = None) -> RunRecord:
+    """run.json and one policy's file. ``policy=None`` = the run's first policy
+    (order of summary.json, else file name). Raises DriveE2EError (one line)."""
+    path = Path(results_dir)
+    meta = path / "run.json"
+    if not meta.is_file():
+        raise DriveE2EError(f"{path}: not a drivee2e results folder (no run.json; expected the --out of `drivee2e bench`)")
+    info = _read_json(meta)
+    files = {}
+    for f in sorted((path / "policies").glob("*.json")):
+        data = _read_json(f)
+        files[str(data.get("policy", f.stem))] = data
+    if not files:
+        raise DriveE2EError(f"{path / 'policies'}: no finished policy file (run `drivee2e bench` to the end first)")
+    order = list(files)
+    if (path / "summary.json").is_file():
+        listed = list(_read_json(path / "summary.json").get("policies", {}))
+        order = [p for p in listed if p in files] + [p for p in order if p not in listed]
+    name = order[0] if policy is None else policy
+    if name not in files:
+        raise DriveE2EError(f"--policy {policy}: not in {path} (expected one of {', '.join(order)})")
+    return RunRecord(path=path, info=info, policy=name, data=files[name])
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise DriveE2EError(f"{path}: unreadable ({e})") from e
+
+
+def stored_rows(run: RunRecord) -> dict[str, dict]:
+    """scenario id -> its stored row (the first repetition)."""
+    return {r["scenario_id"]: r for r in run.data["rows"] if not r.get("repetition")}
+
+
+def _load_run_policy(run: RunRecord):
+    from drivee2e_jax.policy import load_policy
+
+    path = run.data.get("policy_path")
+    if not path:
+        raise DriveE2EError(f"{run.path}/policies: {run.policy}'s file has no policy_path")
+    if not Path(path).is_file():
+        raise DriveE2EError(f"{path}: the policy file of {run.policy!r} recorded in {run.path} is missing "
+                            "(trace from the folder the bench ran in)")
+    return load_policy(path, **(run.data.get("policy_kwargs") or {}))
+
+
+def _run_packed(run: RunRecord):
+    """(suite, the packed batch the bench evaluated: task-filtered, limited)."""
+    from drivee2e_jax.scenario import load_suite
+    from drivee2e_jax.tasks import apply_task, get_task
+
+    info = run.info
+    suite = load_suite(info["suite"])
+    if str(suite.version) != str(info.get("suite_version", suite.version)):
+        warnings.warn(f"{run.path}: run on suite version {info['suite_version']}, now {suite.version}; "
+                      "traces may differ", stacklevel=3)
+    task = info.get("task", "route_navigation")
+    packed = apply_task(get_task(task), suite.pack(info["split"]))
+    n = min(len(packed), int(info.get("num_scenarios") or len(packed)))
+    packed = packed.select(np.arange(n))
+    variant = info.get("variant", "complete")
+    if variant != "complete":  # agents removed as the bench removed them (same mask cache label)
+        from drivee2e_jax.scenario.variants import apply_variant
+
+        tag = "" if task == "route_navigation" else f"-{task}"
+        packed = apply_variant(packed, variant, f"{suite.name}-{info['split']}{tag}").batch
+    return suite, packed
+
+
+def select_rows(scenario_ids_all: Sequence[str], wanted: Sequence[str] | None) -> np.ndarray:
+    """Rows of ``wanted`` ids in ``scenario_ids_all`` (all when None).
+    An unknown id raises DriveE2EError listing a few valid ones."""
+    ids = [str(s) for s in scenario_ids_all]
+    if wanted is None:
+        return np.arange(len(ids))
+    where = {s: i for i, s in enumerate(ids)}
+    for s in wanted:
+        if s not in where:
+            few = ", ".join(ids[:5]) + (", ..." if len(ids) > 5 else "")
+            raise DriveE2EError(f"--scenario {s}: not in this run ({len(ids)} scenarios: {few})")
+    return np.array([where[s] for s in dict.fromkeys(wanted)], np.int64)
+
+
+# --------------------------------------------------------------------------
+# Re-simulation
+# --------------------------------------------------------------------------
+
+
+def trace_episodes(
+    results_dir: str | Path,
+    policy: str | None = None,
+    scenario_ids: Sequence[str] | None = None,
+    *,
+    sensors: Sequence[str] = TRACE_SENSORS,
+    sensor_config=None,
+    limit: int | None = None,
+) -> list[EpisodeTrace]:
+    """Re-simulate episodes of a results folder; one trace per episode.
+
+    Args:
+      results_dir: a ``drivee2e bench`` output folder.
+      policy: policy name in it (None: the run's first policy).
+      scenario_ids: ids to trace (None: every scenario of the run).
+      sensors: subset of ``("bev", "lidar")`` to render per step (``()``: none).
+      sensor_config: an ``observe.sensors.SensorConfig`` overriding
+        ``default_sensor_config(sensors)``.
+      limit: only the first N chosen scenarios.
+
+    Raises DriveE2EError (one line) on a bad folder, policy or scenario id.
+    Warns when a re-simulated Driving Score differs from the stored one.
+    """
+    run = read_run(results_dir, policy)
+    suite, packed = _run_packed(run)
+    rows = select_rows(packed.meta.scenario_id, scenario_ids)
+    if limit is not None:
+        rows = rows[: max(int(limit), 0)]
+    sensor_cfg = sensor_config if sensor_config is not None else default_sensor_config(tuple(sensors))
+    sim_out = _simulate(run, suite, packed, rows)
+    stored = stored_rows(run)
+    frames = _frames(sim_out, suite, packed, rows, sensor_cfg)
+    traces = []
+    for j, row in enumerate(rows):
+        sid = str(packed.meta.scenario_id[row])
+        tr = _episode_trace(run, packed, int(row), j, sim_out, frames, stored.get(sid, {}), sensor_cfg)
+        if not tr.reproduced:
+            warnings.warn(f"{sid}: re-simulated driving score {tr.driving_score:.4f} differs from the stored "
+                          f"{tr.stored_driving_score:.4f} ({run.path})", stacklevel=2)
+        traces.append(tr)
+    return traces
+
+
+def _tracing_rollout_cls():
+    from drivee2e_jax.rollout import Rollout
+
+    class TracingRollout(Rollout):
+        """A Rollout whose scan also emits the action applied each step."""
+
+        def _advance_one(self, scenario, carry, assets, params):
+            import jax
+
+            def body(c, _):
+                c, log = self._step_one(scenario, c, assets, params)
+                return c, (log, c.held)
+
+            return jax.lax.scan(body, carry, None, length=self.chunk)
+
+    return TracingRollout
+
+
+def _simulate(run: RunRecord, suite, packed, rows: np.ndarray) -> dict:
+    """Roll the run's policy out exactly as ``evaluate`` did; keep ``rows``.
+
+    The whole evaluated batch is re-run, not only ``rows``: the same batch
+    shape, PRNG keys and parameters as the bench, so the compiled program is
+    the bench's (a persistent-cache hit for a controls policy) and the floats
+    are bit-identical whichever scenarios are asked for.
+    """
+    import jax
+
+    from drivee2e_jax.evaluation import _init_params, device_batch, with_policy_sensors
+    from drivee2e_jax.metrics import episode as ep
+    from drivee2e_jax.observe import sensors as sensors_mod
+    from drivee2e_jax.observe.vector import ObsConfig
+    from drivee2e_jax.rollout import ControlTiming, Rollout
+    from drivee2e_jax.sim import Simulator, SimConfig, score_preset
+    from drivee2e_jax.types import to_numpy
+
+    info = run.info
+    pol = _load_run_policy(run)
+    try:
+        obs = ObsConfig(gps_noise_std=float(info.get("gps_noise_std", 0.0)),
+                        compass_noise_std=float(info.get("compass_noise_std", 0.0)))
+        sim_cfg = SimConfig(dt=float(info["dt"]), score=score_preset(info.get("preset", "paper")), obs=obs)
+        cfg = with_policy_sensors(sim_cfg, pol)
+        timing = ControlTiming(int(info.get("control_every", 1)), int(info.get("latency", 0)))
+    except ValueError as e:
+        raise DriveE2EError(f"{run.path / 'run.json'}: {e}") from e
+    assets = sensors_mod.build_assets(packed, cfg.sensors, suite.maps) if cfg.sensors.bev is not None else None
+    batch, _ = device_batch(packed)
+    sim = Simulator(cfg)
+    key = jax.random.PRNGKey(int(info.get("seed", 0)))
+    params = _init_params(pol, sim, batch, key, assets)
+    # A controls policy's actions are in the StepLog; a waypoint policy's
+    # plan needs the scan to emit the applied action as well.
+    waypoints = pol.action_type == "waypoints"
+    ro = (_tracing_rollout_cls() if waypoints else Rollout)(sim, pol, params, timing=timing, assets=assets)
+    total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+    carry = ro.init(batch, jax.random.split(key, len(packed)))
+    ego0 = to_numpy(carry.sim.ego)
+    logs, actions, steps = [], [], 0
+    while steps < total and not bool(np.all(np.asarray(carry.sim.episode.done))):
+        carry, out = ro.advance(batch, carry)
+        log, held = out if waypoints else (out, None)
+        logs.append(to_numpy(log))
+        actions.append(to_numpy(held))
+        steps += ro.chunk
+    res = jax.vmap(ep.finalize, in_axes=(0, 0, None))(carry.sim.episode, batch.route, cfg.score)
+    pick = lambda tree: jax.tree_util.tree_map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
+    return {
+        "ego0": pick(ego0),
+        "logs": pick(jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *logs)),
+        "actions": pick(jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *actions)) if waypoints else None,
+        "driving_score": np.asarray(res.driving_score)[rows],
+        "batch": pick(packed.scenario),
+    }
+
+
+def _episode_length(log_active: np.ndarray) -> int:
+    """Steps the episode ran (the active flags are a prefix)."""
+    return int(np.sum(log_active))
+
+
+# --------------------------------------------------------------------------
+# Per-step frames: agents, signals, sensors at the traced times
+# --------------------------------------------------------------------------
+
+
+def _frame_fn(sensor_cfg):
+    """jit(vmap over time) of one scenario's replayed agents, signals and sensors."""
+    import jax
+    import jax.numpy as jnp
+
+    from drivee2e_jax import replay
+    from drivee2e_jax.observe import lidar as lidar_mod
+    from drivee2e_jax.observe import raycast
+    from drivee2e_jax.observe import sensors as sensors_mod
+
+    bev_cfg = dataclasses.replace(sensor_cfg, lidar=None)
+
+    def one(scenario, ego, assets):
+        tr, m = scenario.tracks, scenario.map
+        agents = replay.agents_at(tr, ego.t, scenario.dt_log)
+        signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
+        seen = agents.replace(valid=agents.valid & (jnp.arange(agents.valid.shape[0]) != scenario.ego_index))
+        out = {"agents": agents, "signals": signals}
+        if sensor_cfg.bev is not None:
+            out["bev"] = sensors_mod.render(
+                bev_cfg, ego=ego, ego_lw=tr.size[scenario.ego_index, :2], agents=seen, size=tr.size,
+                category=tr.category, ego_row=scenario.ego_index, obstacles=m.obstacles,
+                obstacle_height=m.obstacle_height, stop_state=signals, route_xy=scenario.route.xy,
+                route_valid=scenario.route.valid, assets=assets,
+            )["bev"]
+        if sensor_cfg.lidar is not None:
+            scene = raycast.select_scene(ego.xy, seen, tr.size, tr.category, m.obstacles, m.obstacle_height,
+                                         sensor_cfg.scene, exclude=scenario.ego_index)
+            scan = lidar_mod.lidar_scan(scene, ego.xy, ego.yaw, sensor_cfg.lidar)
+            out["lidar_points"], out["lidar_class"], out["lidar_valid"] = scan.points, scan.hit_class.reshape(-1), scan.valid
+        return out
+
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, None)))
+
+
+def _ego_states(sim_out: dict, j: int):
+    """EgoState with leading axis T_pad + 1: the reset state then every logged step."""
+    from drivee2e_jax.types import EgoState
+
+    e0 = _row(sim_out["ego0"], j)
+    log = _row(sim_out["logs"], j)
+    fields = {"xy": log.xy, "yaw": log.yaw, "speed": log.speed, "accel": log.accel, "steer": log.steer,
+              "yaw_rate": log.yaw_rate, "t": log.t}
+    return EgoState(**{k: np.concatenate([np.asarray(getattr(e0, k))[None], v]) for k, v in fields.items()})
+
+
+def _row(tree, i: int):
+    """Row ``i`` of every leaf of a batched (numpy) pytree."""
+    import jax
+
+    return jax.tree_util.tree_map(lambda a: a[i], tree)
+
+
+def _frames(sim_out: dict, suite, packed, rows: np.ndarray, sensor_cfg) -> list[dict]:
+    """Per chosen episode: numpy frames over the padded trace length (one compile)."""
+    from drivee2e_jax.observe import sensors as sensors_mod
+    from drivee2e_jax.types import to_numpy
+
+    fn = _frame_fn(sensor_cfg)
+    assets = None
+    if sensor_cfg.bev is not None:
+        assets = sensors_mod.build_assets(packed.select(rows), sensor_cfg, suite.maps)
+    out = []
+    for j in range(len(rows)):
+        scenario = _row(sim_out["batch"], j)
+        a = None if assets is None else assets.replace(map_index=np.asarray(assets.map_index)[j])
+        frames = fn(scenario, _ego_states(sim_out, j), a)
+        out.append(to_numpy(frames))
+    return out
+
+
+# --------------------------------------------------------------------------
+# Assembling one trace
+# --------------------------------------------------------------------------
+
+
+def _polys(lines, keep=None) -> list:
+    """Valid polylines of a numpy ``types.Polylines`` as a list of (N_i, 2) arrays."""
+    rows = np.flatnonzero(lines.valid) if keep is None else keep
+    return [np.asarray(lines.xy[i][lines.point_valid[i]], np.float64) for i in rows]
+
+
+def static_map(m) -> StaticMap:
+    """Host ``StaticMap`` of one unbatched numpy ``types.MapData``."""
+    lanes = np.flatnonzero(m.lanes.valid)
+    bounds = np.flatnonzero(m.boundaries.valid)
+    stops = np.flatnonzero(m.stop_line_valid)
+    obst = np.flatnonzero(m.obstacles.valid)
+    return StaticMap(
+        lanes=_polys(m.lanes, lanes),
+        lane_type=np.asarray(m.lane_type)[lanes],
+        lane_speed_limit=np.asarray(m.lane_speed_limit)[lanes],
+        boundaries=_polys(m.boundaries, bounds),
+        boundary_marking=np.asarray(m.boundary_marking)[bounds],
+        crosswalks=_polys(m.crosswalks),
+        stop_lines=np.asarray(m.stop_lines, np.float64)[stops],
+        stop_line_row=stops,
+        stop_line_lane=np.asarray(m.stop_line_lane)[stops],
+        drivable=_polys(m.drivable),
+        obstacles=_polys(m.obstacles, obst),
+        obstacle_height=np.asarray(m.obstacle_height)[obst],
+    )
+
+
+def _timeline(log, n: int, ego_speed: np.ndarray, rc0: float) -> dict:
+    """Per-step metric timelines (T = n + 1; index 0 = the reset state)."""
+    out = {"speed": ego_speed, "route_completion": np.concatenate([[rc0], np.asarray(log.route_completion[:n])])}
+    for group, obj in (("facts", log.facts), ("events", log.events)):
+        for f in dataclasses.fields(obj):
+            v = np.asarray(getattr(obj, f.name))
+            if v.ndim != 1:  # per-stop-line arrays (red_light_lines) are not timelines
+                continue
+            out[f"{group}.{f.name}"] = np.concatenate([np.zeros(1, v.dtype), v[:n]])
+    return out
+
+
+def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, frames: list, stored: dict,
+                   sensor_cfg) -> EpisodeTrace:
+    from drivee2e_jax.geometry import from_frame
+    from drivee2e_jax.metrics import episode as ep
+    from drivee2e_jax.types import Waypoints
+
+    import jax
+
+    log = _row(sim_out["logs"], j)
+    n = _episode_length(np.asarray(log.active))
+    t_len = n + 1
+    sc = _row(sim_out["batch"], j)
+    ego = _ego_states(sim_out, j)
+    cut = lambda a: np.asarray(a)[:t_len]  # noqa: E731
+    fr = frames[j]
+    meta = {k: str(getattr(packed.meta, k)[row]) for k in
+            ("split", "intersection_id", "map_id", "behavior", "weather", "time_of_day")}
+
+    # Actions taken FROM state k: log rows 0..n-1; the final state has none.
+    controls = np.zeros((t_len, 3), np.float32)
+    controls[:n] = np.stack([log.throttle[:n], log.brake[:n], log.steer_cmd[:n]], axis=-1)
+    plan_valid = np.zeros(t_len, bool)
+    plan_valid[:n] = True
+    plan = None
+    held = None if sim_out["actions"] is None else _row(sim_out["actions"], j)
+    if isinstance(held, Waypoints):
+        wp = np.asarray(held.xy[:n])  # (n, K, 2) ego frame of state k
+        world = jax.vmap(from_frame)(wp, np.asarray(ego.xy[:n]), np.asarray(ego.yaw[:n]))
+        plan = np.zeros((t_len,) + wp.shape[1:], np.float32)
+        plan[:n] = np.asarray(world)
+
+    ego_idx = int(sc.ego_index)
+    others = np.flatnonzero(np.asarray(sc.tracks.valid).any(axis=-1) & (np.arange(sc.tracks.xy.shape[0]) != ego_idx))
+    ag = fr["agents"]
+    agents = AgentsTrace(
+        track_id=np.asarray(sc.tracks.track_id)[others],
+        category=np.asarray(sc.tracks.category)[others],
+        size=np.asarray(sc.tracks.size)[others],
+        xy=cut(ag.xy)[:, others],
+        yaw=cut(ag.yaw)[:, others],
+        vel=cut(ag.vel)[:, others],
+        valid=cut(ag.valid)[:, others],
+    )
+    smap = static_map(sc.map)
+    route_ok = np.asarray(sc.route.valid)
+    ds = float(sim_out["driving_score"][j])
+    stored_ds = float(stored.get("driving_score", np.nan))
+    trace = EpisodeTrace(
+        scenario_id=str(packed.meta.scenario_id[row]),
+        policy=run.policy,
+        meta=meta,
+        row=stored,
+        dt=float(run.info["dt"]),
+        times=cut(ego.t).astype(np.float64),
+        ego_size=np.asarray(sc.tracks.size[ego_idx]),
+        ego_xy=cut(ego.xy),
+        ego_yaw=cut(ego.yaw),
+        ego_speed=cut(ego.speed),
+        ego_accel=cut(ego.accel),
+        ego_steer=cut(ego.steer),
+        ego_yaw_rate=cut(ego.yaw_rate),
+        controls=controls,
+        plan_xy=plan,
+        plan_valid=plan_valid,
+        agents=agents,
+        signals=cut(fr["signals"])[:, smap.stop_line_row],
+        map=smap,
+        route_xy=np.asarray(sc.route.xy)[route_ok],
+        route_arc=np.asarray(sc.route.arc)[route_ok],
+        route_command=np.asarray(sc.route.command)[route_ok],
+        route_length=float(sc.route.length),
+        timeline=_timeline(log, n, cut(ego.speed), 0.0),
+        events=list(run.data.get("events", {}).get(str(packed.meta.scenario_id[row]), [])),
+        resim_events=ep.extract_events(log),
+        driving_score=ds,
+        stored_driving_score=stored_ds,
+        reproduced=bool(abs(ds - stored_ds) <= DS_TOLERANCE),
+    )
+    if "bev" in fr:
+        from drivee2e_jax.observe.bev import unpack_bits
+
+        names = sensor_cfg.bev.channel_names
+        bits = np.asarray(unpack_bits(cut(fr["bev"]), len(names))) > 0.5
+        trace.bev = {c: bits[..., i] for i, c in enumerate(names)}
+        trace.bev_resolution = float(sensor_cfg.bev.resolution)
+    if "lidar_points" in fr:
+        trace.lidar_points = cut(fr["lidar_points"]).astype(np.float32)
+        trace.lidar_class = cut(fr["lidar_class"]).astype(np.int8)
+        trace.lidar_valid = cut(fr["lidar_valid"])
+    return trace
+
+
+# --------------------------------------------------------------------------
+# JSON for the episode player
+# --------------------------------------------------------------------------
+
+
+def _r(a, nd: int):
+    """Rounded nested lists; non-finite -> None (JSON has no inf/NaN)."""
+    a = np.asarray(a)
+    if a.dtype == bool:
+        return a.astype(int).tolist()
+    if np.issubdtype(a.dtype, np.integer):
+        return a.tolist()
+    out = np.round(a.astype(np.float64), nd)
+    return out.tolist() if np.all(np.isfinite(out)) else _nan_to_none(out.tolist())
+
+
+def _nan_to_none(x):
+    if isinstance(x, list):
+        return [_nan_to_none(v) for v in x]
+    return None if isinstance(x, float) and not np.isfinite(x) else x
+
+
+def to_jsonable(trace: EpisodeTrace, *, bev: bool = False, lidar_stride: int = 0) -> dict:
+    """A compact JSON-ready dict of ``trace`` (lists, floats rounded: positions
+    to cm, angles to mrad; non-finite -> null). Sensors are left out unless
+    asked: ``bev=True`` adds ``bev_png``: T base64 PNGs of ``bev_rgb`` (row 0
+    farthest ahead) and ``bev_resolution``;
+    ``lidar_stride=s`` adds ``lidar``: T dicts {xyz: every s-th valid return
+    (ego frame, m), class: its hit class}.
+
+    Keys mirror the ``EpisodeTrace`` fields; ``agents`` and ``map`` are dicts
+    of the same names; bool arrays become 0/1.
+    """
+    a = trace.agents
+    m = trace.map
+    out = {
+        "scenario_id": trace.scenario_id,
+        "policy": trace.policy,
+        "meta": trace.meta,
+        "row": {k: _jsonable_value(v) for k, v in trace.row.items()},
+        "dt": trace.dt,
+        "times": _r(trace.times, 3),
+        "ego_size": _r(trace.ego_size, 2),
+        "ego_xy": _r(trace.ego_xy, 2),
+        "ego_yaw": _r(trace.ego_yaw, 3),
+        "ego_speed": _r(trace.ego_speed, 2),
+        "ego_accel": _r(trace.ego_accel, 2),
+        "ego_steer": _r(trace.ego_steer, 3),
+        "ego_yaw_rate": _r(trace.ego_yaw_rate, 3),
+        "controls": _r(trace.controls, 3),
+        "plan_xy": None if trace.plan_xy is None else _r(trace.plan_xy, 2),
+        "plan_valid": _r(trace.plan_valid, 0),
+        "agents": {
+            "track_id": _r(a.track_id, 0), "category": _r(a.category, 0), "size": _r(a.size, 2),
+            "xy": _r(a.xy, 2), "yaw": _r(a.yaw, 3), "valid": _r(a.valid, 0),
+        },
+        "signals": _r(trace.signals, 0),
+        "map": {
+            "lanes": [_r(p, 2) for p in m.lanes], "lane_type": _r(m.lane_type, 0),
+            "boundaries": [_r(p, 2) for p in m.boundaries], "boundary_marking": _r(m.boundary_marking, 0),
+            "crosswalks": [_r(p, 2) for p in m.crosswalks], "stop_lines": _r(m.stop_lines, 2),
+            "stop_line_row": _r(m.stop_line_row, 0), "drivable": [_r(p, 2) for p in m.drivable],
+            "obstacles": [_r(p, 2) for p in m.obstacles], "obstacle_height": _r(m.obstacle_height, 2),
+        },
+        "route_xy": _r(trace.route_xy, 2),
+        "route_command": _r(trace.route_command, 0),
+        "route_length": round(trace.route_length, 3),
+        "timeline": {k: _r(v, 3) for k, v in trace.timeline.items()},
+        "events": trace.events,
+        "driving_score": round(trace.driving_score, 4),
+        "stored_driving_score": _jsonable_value(trace.stored_driving_score),
+        "reproduced": trace.reproduced,
+    }
+    if bev and trace.bev is not None:
+        out["bev_png"] = [base64.b64encode(png_bytes(bev_rgb(trace.bev, k))).decode("ascii")
+                          for k in range(trace.num_steps)]
+        out["bev_resolution"] = trace.bev_resolution
+    if lidar_stride and trace.lidar_points is not None:
+        s = int(lidar_stride)
+        out["lidar"] = [
+            {"xyz": _r(p[v][::s], 2), "class": _r(c[v][::s], 0)}
+            for p, c, v in zip(trace.lidar_points, trace.lidar_class, trace.lidar_valid)
+        ]
+    return out
+
+
+#: BEV channel colours (RGB 0-255) in drawing order: later channels paint over earlier ones.
+BEV_COLOURS = {
+    "drivable": (60, 60, 60), "lane": (90, 90, 90), "crosswalk": (150, 150, 150), "dashed": (200, 200, 200),
+    "solid": (235, 235, 235), "road_edge": (255, 255, 255), "obstacle": (140, 90, 60), "stop_line": (255, 255, 255),
+    "stop_green": (40, 200, 60), "stop_yellow": (240, 200, 0), "stop_red": (230, 40, 40), "route": (70, 130, 230),
+    "vehicle": (250, 150, 30), "pedestrian": (230, 60, 200), "cyclist": (0, 200, 200), "ego": (255, 255, 80),
+}
+
+
+def bev_rgb(bev: dict, k: int) -> np.ndarray:
+    """(H, W, 3) uint8 colour picture of step ``k`` of a trace's BEV
+    channels (``BEV_COLOURS``; unknown channels, e.g. history frames, are skipped)."""
+    first = next(iter(bev.values()))
+    img = np.zeros(first.shape[1:] + (3,), np.uint8)
+    for name, colour in BEV_COLOURS.items():
+        if name in bev:
+            img[bev[name][k]] = colour
+    return img
+
+
+def png_bytes(rgb: np.ndarray) -> bytes:
+    """PNG file bytes of an (H, W, 3) uint8 image (matplotlib's writer)."""
+    import io
+
+    from matplotlib import image as mpimg
+
+    buf = io.BytesIO()
+    mpimg.imsave(buf, rgb, format="png")
+    return buf.getvalue()
+
+
+def _jsonable_value(v):
+    if isinstance(v, (np.generic,)):
+        v = v.item()
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v

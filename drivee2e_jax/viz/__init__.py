@@ -1,0 +1,1 @@
+"""Host-side visualisation: the self-contained HTML episode player (``viz.player``)."""

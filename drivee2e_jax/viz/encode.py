@@ -1,0 +1,97 @@
+"""Compact, JSON-ready encodings of host arrays for the HTML episode player.
+
+Host side only (numpy + Pillow). The player embeds everything in one HTML
+file, so the encodings trade a little precision for size:
+
+* coordinates rounded to 1 cm (``round_list``), invalid samples as ``null``;
+* polylines / polygons as flat ``[x0, y0, x1, y1, ...]`` lists;
+* the BEV as one PNG data URI per kept frame, its binary channels composited
+  in fixed colours (later channels paint over earlier ones);
+* LiDAR points as base64 of little-endian int16 ego-frame x, y (``LIDAR_SCALE``
+  metres per unit) plus base64 uint8 hit classes, at most ``max_points`` a frame.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+
+import numpy as np
+
+#: Metres per int16 unit of an encoded LiDAR point (+-327 m range at 1 cm).
+LIDAR_SCALE = 0.01
+
+#: RGB of each BEV channel name (``observe.bev.ALL_CHANNELS``); history channels
+#: (``vehicle@-1``) reuse their base colour, dimmed.
+BEV_COLORS = {
+    "drivable": (52, 55, 61), "lane": (90, 96, 110), "solid": (232, 232, 232), "dashed": (170, 170, 170),
+    "road_edge": (185, 190, 199), "crosswalk": (120, 120, 130), "obstacle": (120, 90, 60),
+    "stop_line": (154, 160, 166), "stop_red": (255, 59, 48), "stop_yellow": (255, 204, 0),
+    "stop_green": (52, 199, 89), "route": (50, 100, 190), "vehicle": (78, 154, 241),
+    "pedestrian": (242, 101, 95), "cyclist": (92, 208, 108), "ego": (255, 159, 26),
+}
+
+
+def round_list(a, decimals: int = 2, valid=None) -> list:
+    """``a`` rounded to a (nested) list; entries where ``valid`` is False (or
+    that are not finite) become ``None``. ``valid`` has ``a``'s leading shape."""
+    a = np.asarray(a, dtype=np.float64)
+    ok = np.isfinite(a)
+    if valid is not None:
+        v = np.asarray(valid, bool)
+        ok &= v.reshape(v.shape + (1,) * (a.ndim - v.ndim))
+    r = np.round(a, decimals)
+    if decimals <= 0:
+        r = r.astype(np.int64)
+    out = r.astype(object)
+    out[~ok] = None
+    return out.tolist()
+
+
+def flat_points(xy, point_valid=None, decimals: int = 2) -> list[float]:
+    """(N, 2) points (only the valid ones) -> flat ``[x0, y0, x1, y1, ...]``."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    keep = np.isfinite(xy).all(axis=1)
+    if point_valid is not None:
+        keep &= np.asarray(point_valid, bool).reshape(-1)
+    return np.round(xy[keep], decimals).reshape(-1).tolist()
+
+
+def composite_bev(bev, channels) -> np.ndarray:
+    """(H, W, C) channel stack (bool or [0, 1] floats) -> (H, W, 3) uint8 picture.
+
+    Channels paint in order (a pixel takes the colour of the last channel that
+    is on, blended by its value); unknown names are drawn grey."""
+    bev = np.asarray(bev, dtype=np.float32)
+    if bev.ndim != 3 or bev.shape[-1] != len(channels):
+        raise ValueError(f"BEV: expected (H, W, {len(channels)}) for channels {list(channels)}, got {bev.shape}")
+    img = np.zeros(bev.shape[:2] + (3,), np.float32)
+    for c, name in enumerate(channels):
+        base, _, back = name.partition("@")
+        colour = np.array(BEV_COLORS.get(base, (128, 128, 128)), np.float32) * (0.5 if back else 1.0)
+        a = np.clip(bev[..., c], 0.0, 1.0)[..., None]
+        img = img * (1.0 - a) + colour * a
+    return np.clip(img + 0.5, 0, 255).astype(np.uint8)
+
+
+def png_data_uri(rgb: np.ndarray) -> str:
+    """(H, W, 3) uint8 -> ``data:image/png;base64,...``."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8), "RGB").save(buf, format="PNG", optimize=True)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def encode_lidar_points(xy, hit_class, max_points: int, rng: np.random.Generator) -> dict:
+    """One frame of ego-frame points (P, 2) m with (P,) int hit classes -> the
+    player's ``{"xy": base64 int16, "c": base64 uint8}``; a uniform random
+    subset of at most ``max_points`` points is kept."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    c = np.asarray(hit_class).reshape(-1)
+    keep = np.flatnonzero(np.isfinite(xy).all(axis=1))
+    if keep.size > max_points:
+        keep = np.sort(rng.choice(keep, size=max_points, replace=False))
+    q = np.clip(np.round(xy[keep] / LIDAR_SCALE), -32768, 32767).astype("<i2")
+    return {"xy": base64.b64encode(q.tobytes()).decode("ascii"),
+            "c": base64.b64encode(np.clip(c[keep], 0, 255).astype(np.uint8).tobytes()).decode("ascii")}

@@ -1,0 +1,191 @@
+"""One ``io.episodes.EpisodeTrace`` -> the episode record the HTML player reads.
+
+Host side only. An episode record (all coordinates world frame, m, rounded to
+1 cm; ``flat`` = ``[x0, y0, x1, y1, ...]``; frame ``k`` is ``trace.times[k]``)::
+
+    id, policy, status, ds, rc (stored Driving Score / route completion, %),
+    behavior, split, map_id, reproduced,
+    dt (s per frame), t0 (s at frame 0), n (frames),
+    route:   flat route polyline,
+    ego:     {l, w, x: [n], y: [n], yaw: [n] (rad), wp: [n] flat world waypoints or null},
+    agents:  [{id, cat, l, w, f0, x, y, yaw}]  samples from frame f0 on, null where absent,
+    signals: [S][n] ``SignalState`` values, one row per map stop line,
+    metrics: [{name, label, unit, values: [n], range?: [lo, hi], color?}],
+    events:  [{type, t, x, y, frame, ...}]  the stored infraction events,
+    bev:     {stride, channels, colors, frames: [PNG data URI]} or null,
+    lidar:   {stride, range, scale, frames: [{xy, c}]} or null  (``encode``).
+
+Sensor frames are kept every ``stride`` frames (the player shows the latest
+one at or before the current frame) to keep the file small.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drivee2e_jax.viz import encode
+
+#: Timelines drawn under the scene: (name, label, unit, source, scale, range, colour).
+#: ``source`` is a ``trace.timeline`` key or ``controls[i]``.
+TIMELINES = (
+    ("speed", "speed", "km/h", "speed", 3.6, None, "#74c0fc"),
+    ("route_completion", "route completion", "%", "route_completion", 1.0, (0.0, 100.0), "#69db7c"),
+    ("throttle", "throttle", "", "controls[0]", 1.0, (0.0, 1.0), "#8ce99a"),
+    ("brake", "brake", "", "controls[1]", 1.0, (0.0, 1.0), "#ff8787"),
+    ("steer", "steer", "", "controls[2]", 1.0, (-1.0, 1.0), "#ffd43b"),
+    ("front_distance", "front gap", "m", "facts.front_distance", 1.0, (0.0, 50.0), "#b197fc"),
+    ("lane_offset", "lane offset", "m", "facts.lane_offset", 1.0, None, "#ffa94d"),
+)
+#: Cap of the front-gap timeline (inf = nobody ahead), m.
+FRONT_GAP_CAP_M = 50.0
+
+
+def enum_meta() -> dict:
+    """Enum names by value, so the page needs no copy of ``types``."""
+    from drivee2e_jax.observe.raycast import HIT_AGENT
+    from drivee2e_jax.types import Category, Marking, SignalState
+
+    def names(enum):
+        return [m.name.lower() for m in sorted(enum, key=int)]
+
+    cats = names(Category)
+    assert [int(c) for c in sorted(Category, key=int)] == list(range(len(cats)))
+    hits = ["none", "ground", "static"]
+    assert len(hits) == HIT_AGENT
+    return {"categories": cats, "signal_states": names(SignalState), "markings": names(Marking),
+            "hit_classes": hits + cats}
+
+
+def map_payload(smap) -> dict:
+    """``io.episodes.StaticMap`` -> the player's map record."""
+    flat = lambda polys: [f for f in (encode.flat_points(p) for p in polys) if len(f) >= 4]  # noqa: E731
+    return {
+        "drivable": flat(smap.drivable),
+        "obstacles": flat(smap.obstacles),
+        "crosswalks": flat(smap.crosswalks),
+        "lanes": flat(smap.lanes),
+        "boundaries": [[int(m), encode.flat_points(p)] for m, p in zip(smap.boundary_marking, smap.boundaries)
+                       if len(p) >= 2],
+        "stop_lines": np.round(np.asarray(smap.stop_lines, np.float64).reshape(-1, 4), 2).tolist(),
+    }
+
+
+def agents_payload(agents) -> list[dict]:
+    """``io.episodes.AgentsTrace`` -> one compact record per agent seen at least once."""
+    out = []
+    for a in range(agents.track_id.shape[0]):
+        ok = np.asarray(agents.valid[:, a], bool)
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
+            continue
+        f0, f1 = int(idx[0]), int(idx[-1]) + 1
+        v = ok[f0:f1]
+        out.append({
+            "id": int(agents.track_id[a]), "cat": int(agents.category[a]),
+            "l": round(float(agents.size[a, 0]), 2), "w": round(float(agents.size[a, 1]), 2), "f0": f0,
+            "x": encode.round_list(agents.xy[f0:f1, a, 0], 2, v),
+            "y": encode.round_list(agents.xy[f0:f1, a, 1], 2, v),
+            "yaw": encode.round_list(agents.yaw[f0:f1, a], 3, v),
+        })
+    return out
+
+
+def _series(trace, source: str) -> np.ndarray | None:
+    if source.startswith("controls["):
+        return np.asarray(trace.controls[:, int(source[9:-1])], np.float64)
+    v = trace.timeline.get(source)
+    return None if v is None else np.asarray(v, np.float64)
+
+
+def metrics_payload(trace) -> list[dict]:
+    """The ``TIMELINES`` present in ``trace``; the last frame's action (none)
+    repeats the one before so the curves do not drop to zero at the end."""
+    out = []
+    for name, label, unit, source, scale, rng, colour in TIMELINES:
+        v = _series(trace, source)
+        if v is None:
+            continue
+        v = v * scale
+        if source.startswith("controls[") and len(v) > 1:
+            v[-1] = v[-2]
+        if name == "front_distance":
+            v = np.minimum(v, FRONT_GAP_CAP_M)
+        rec = {"name": name, "label": label, "unit": unit, "values": encode.round_list(v, 2), "color": colour}
+        if rng is not None:
+            rec["range"] = list(rng)
+        out.append(rec)
+    return out
+
+
+def events_payload(events: list[dict], times: np.ndarray) -> list[dict]:
+    """Stored events with the frame (nearest traced instant) each happened at."""
+    out = []
+    for e in events:
+        k = int(np.clip(np.searchsorted(times, float(e.get("t", 0.0)) - 1e-6), 0, len(times) - 1))
+        out.append({**e, "frame": k})
+    return sorted(out, key=lambda e: e["frame"])
+
+
+def bev_payload(trace, stride: int) -> dict | None:
+    if not trace.bev:
+        return None
+    channels = list(trace.bev)
+    stack = np.stack([np.asarray(trace.bev[c]) for c in channels], axis=-1)  # (T, H, W, C)
+    frames = [encode.png_data_uri(encode.composite_bev(stack[k], channels)) for k in range(0, len(stack), stride)]
+    colours = ["rgb({},{},{})".format(*encode.BEV_COLORS.get(c.partition("@")[0], (128, 128, 128)))
+               for c in channels]
+    return {"stride": stride, "channels": channels, "colors": colours, "frames": frames}
+
+
+def lidar_payload(trace, stride: int, max_points: int, seed: int = 0) -> dict | None:
+    if trace.lidar_points is None:
+        return None
+    rng = np.random.default_rng(seed)
+    pts, cls, ok = trace.lidar_points, trace.lidar_class, trace.lidar_valid
+    frames = [encode.encode_lidar_points(pts[k, ok[k], :2], cls[k, ok[k]], max_points, rng)
+              for k in range(0, len(pts), stride)]
+    reach = np.abs(pts[..., :2][ok]).max() if ok.any() else 1.0
+    return {"stride": stride, "range": float(np.ceil(min(reach, 100.0))), "scale": encode.LIDAR_SCALE,
+            "frames": frames}
+
+
+def _stride(dt: float, period_s: float) -> int:
+    return max(1, int(round(period_s / dt)))
+
+
+def episode_payload(trace, *, sensors: bool = True, bev_period_s: float = 0.2, lidar_period_s: float = 0.5,
+                    lidar_max_points: int = 1500) -> tuple[dict, str, dict]:
+    """One trace -> (episode record, its map id, the map record).
+
+    Args:
+      trace: ``io.episodes.EpisodeTrace``.
+      sensors: embed the BEV / LiDAR frames the trace carries.
+      bev_period_s, lidar_period_s: keep one sensor frame per this many seconds.
+      lidar_max_points: random subset of returns kept per LiDAR frame.
+    """
+    times = np.asarray(trace.times, np.float64)
+    n = len(times)
+    row = trace.row or {}
+    ds = row.get("driving_score", trace.driving_score)
+    plan = None
+    if trace.plan_xy is not None:
+        plan = [encode.flat_points(trace.plan_xy[k]) if trace.plan_valid[k] else [] for k in range(n)]
+    map_id = str(trace.meta.get("map_id", trace.scenario_id))
+    ep = {
+        "id": trace.scenario_id, "policy": trace.policy, "status": str(row.get("status", "?")),
+        "ds": None if ds is None or not np.isfinite(ds) else round(float(ds), 2),
+        "rc": row.get("route_completion"), "behavior": trace.meta.get("behavior"),
+        "split": trace.meta.get("split"), "map_id": map_id, "reproduced": bool(trace.reproduced),
+        "dt": float(trace.dt), "t0": float(times[0]), "n": n,
+        "route": encode.flat_points(trace.route_xy),
+        "ego": {"l": round(float(trace.ego_size[0]), 2), "w": round(float(trace.ego_size[1]), 2),
+                "x": encode.round_list(trace.ego_xy[:, 0]), "y": encode.round_list(trace.ego_xy[:, 1]),
+                "yaw": encode.round_list(trace.ego_yaw, 3), "wp": plan},
+        "agents": agents_payload(trace.agents),
+        "signals": np.asarray(trace.signals, np.int64).T.tolist(),
+        "metrics": metrics_payload(trace),
+        "events": events_payload(trace.events, times),
+        "bev": bev_payload(trace, _stride(trace.dt, bev_period_s)) if sensors else None,
+        "lidar": lidar_payload(trace, _stride(trace.dt, lidar_period_s), lidar_max_points) if sensors else None,
+    }
+    return ep, map_id, map_payload(trace.map)

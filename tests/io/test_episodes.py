@@ -1,0 +1,144 @@
+"""Episode traces: a tiny bench re-simulated must reproduce its stored results."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivee2e_jax.bench import BenchConfig, run_bench
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.io import episodes
+
+REPO = Path(__file__).resolve().parents[2]
+TINY = REPO / "scenarios" / "examples" / "tiny"
+#: One waypoint policy: the same bench as test_mcap_export (one compile, shared
+#: through the persistent cache), and its plan exercises the world-frame transform.
+POLICIES = ("constant_velocity",)
+POLICY = POLICIES[0]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("episodes") / "run"
+    cfg = BenchConfig(suite=str(TINY), split="train", policies=tuple(str(REPO / "policies" / f"{p}.py") for p in POLICIES),
+                      out=out, limit=2, progress=False)
+    run_bench(cfg, print_fn=lambda s: None)
+    return out
+
+
+@pytest.fixture(scope="module")
+def traces(run_dir):
+    return {p: episodes.trace_episodes(run_dir, p, sensors=()) for p in POLICIES}
+
+
+def _records():
+    from drivee2e_jax.scenario import load_suite
+
+    return {s.scenario_id: s for s in load_suite(str(TINY)).records.scenarios}
+
+
+def test_resimulation_reproduces_the_stored_driving_score(run_dir, traces):
+    stored = json.loads((run_dir / "scenarios.json").read_text())
+    for pol, trs in traces.items():
+        rows = {r["scenario_id"]: r for r in stored if r["policy"] == pol}
+        assert [t.scenario_id for t in trs] == list(rows)  # every scenario of the run, in run order
+        for t in trs:
+            assert t.reproduced
+            assert t.driving_score == pytest.approx(rows[t.scenario_id]["driving_score"], abs=1e-4)
+            assert t.row["driving_score"] == rows[t.scenario_id]["driving_score"]
+            # The re-simulated events are the stored ones (type, time and place).
+            assert [(e["type"], e["t"]) for e in t.resim_events] == [(e["type"], e["t"]) for e in t.events]
+            assert t.events == rows[t.scenario_id]["events"]
+
+
+def test_trace_starts_on_the_logged_ego_and_replays_the_agents(traces):
+    recs = _records()
+    for t in traces[POLICY]:
+        rec = recs[t.scenario_id]
+        ego = next(tr for tr in rec.tracks if tr.track_id == rec.ego_track_id)
+        assert t.times[0] == 0.0
+        np.testing.assert_allclose(t.ego_xy[0], ego.xy[0], atol=1e-4)
+        assert abs(np.angle(np.exp(1j * (t.ego_yaw[0] - ego.yaw[0])))) < 1e-5
+        # Every other agent sits at its logged pose whenever the log has a sample.
+        by_id = {int(i): j for j, i in enumerate(t.agents.track_id)}
+        others = [tr for tr in rec.tracks if tr.track_id != rec.ego_track_id]
+        assert sorted(by_id) == sorted(tr.track_id for tr in others)
+        for tr in others:
+            j = by_id[tr.track_id]
+            for k in (0, 20, t.num_steps - 1):
+                at = np.flatnonzero(np.isclose(tr.t, t.times[k], atol=1e-6))
+                assert bool(t.agents.valid[k, j]) == bool(len(at))
+                if len(at):
+                    np.testing.assert_allclose(t.agents.xy[k, j], tr.xy[at[0]], atol=1e-4)
+
+
+def test_trace_shapes_and_time_axis(traces):
+    for t in traces[POLICY]:
+        n = t.num_steps
+        np.testing.assert_allclose(t.times, t.dt * np.arange(n), atol=1e-5)
+        assert t.ego_xy.shape == (n, 2) and t.controls.shape == (n, 3) and t.plan_xy.shape == (n, 6, 2)
+        assert t.agents.xy.shape == (n, len(t.agents.track_id), 2)
+        assert t.signals.shape == (n, len(t.map.stop_lines))
+        assert all(v.shape == (n,) for v in t.timeline.values())
+        assert {"speed", "route_completion", "facts.agent_hit", "events.collision"} <= set(t.timeline)
+        assert t.timeline["route_completion"][-1] == pytest.approx(t.row["route_completion"], abs=1e-3)
+        assert not t.plan_valid[-1] and t.plan_valid[:-1].all()
+        assert t.bev is None and t.lidar_points is None
+        assert len(t.map.lanes) > 0 and t.route_xy.shape[1] == 2
+
+
+def test_waypoint_plan_is_in_the_world_frame(traces):
+    """constant_velocity plans its first point 0.5 s ahead along its heading."""
+    for t in traces[POLICY]:
+        k = np.flatnonzero(t.plan_valid & (t.ego_speed > 1.0))
+        assert len(k) > 5
+        d = t.plan_xy[k, 0] - t.ego_xy[k]
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), 0.5 * t.ego_speed[k], rtol=0.02, atol=0.02)
+        heading = np.arctan2(d[:, 1], d[:, 0])
+        err = np.angle(np.exp(1j * (heading - t.ego_yaw[k])))
+        assert np.all(np.abs(err) < 0.05 + 0.25 * np.abs(t.ego_yaw_rate[k]))
+
+
+def test_scenario_selection_and_errors(run_dir, traces):
+    all_traces = traces
+    one = episodes.trace_episodes(run_dir, POLICY, ["s_left"], sensors=())
+    assert [t.scenario_id for t in one] == ["s_left"]
+    np.testing.assert_array_equal(one[0].ego_xy, next(t for t in all_traces[POLICY] if t.scenario_id == "s_left").ego_xy)
+    with pytest.raises(DriveE2EError, match=r"--scenario nope: not in this run \(2 scenarios: s_straight, s_left\)"):
+        episodes.trace_episodes(run_dir, POLICY, ["nope"], sensors=())
+    with pytest.raises(DriveE2EError, match="expected one of constant_velocity"):
+        episodes.read_run(run_dir, "unknown")
+    with pytest.raises(DriveE2EError, match="not a drivee2e results folder"):
+        episodes.read_run(run_dir / "policies")
+    with pytest.raises(DriveE2EError, match="unknown 'radar'"):
+        episodes.default_sensor_config(("radar",))
+
+
+def test_to_jsonable_is_strict_json(traces):
+    t = traces[POLICY][0]
+    d = episodes.to_jsonable(t)
+    text = json.dumps(d, allow_nan=False)
+    back = json.loads(text)
+    assert len(back["times"]) == t.num_steps and len(back["agents"]["xy"]) == t.num_steps
+    np.testing.assert_allclose(back["ego_xy"], t.ego_xy, atol=0.006)
+    assert len(back["plan_xy"][0]) == t.plan_xy.shape[1]
+    assert back["timeline"].keys() == t.timeline.keys()
+
+
+@settings(deadline=None, max_examples=30)
+@given(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32)), min_size=1, max_size=20),
+       st.integers(0, 4))
+def test_rounding_keeps_finite_values_and_nulls_the_rest(values, nd):
+    a = np.asarray(values, np.float32)
+    out = episodes._r(a, nd)
+    json.dumps(out, allow_nan=False)
+    for v, o in zip(a.astype(np.float64), out):
+        if np.isfinite(np.round(v, nd)):
+            assert o == pytest.approx(v, abs=0.5 * 10.0 ** -nd + 1e-9 * abs(v))
+        else:
+            assert o is None
