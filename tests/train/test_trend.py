@@ -1,0 +1,24 @@
+"""The checkpoint-trend study on a 2-checkpoint tiny run."""
+
+import csv
+from pathlib import Path
+
+from drivee2e_jax.train.trend import COLUMNS, run_trend
+
+TINY = Path(__file__).resolve().parents[2] / "scenarios" / "examples" / "tiny"
+
+
+def test_trend_writes_csv_and_plot(tiny_run, tmp_path):
+    msgs = []
+    rows = run_trend(tiny_run, tmp_path, suite=str(TINY), split="train", limit=1, print_fn=msgs.append)
+    assert [r["epoch"] for r in rows] == [1, 2]
+    with open(tmp_path / "trend.csv") as f:
+        table = list(csv.DictReader(f))
+    assert tuple(table[0]) == COLUMNS and len(table) == 2 and table[0]["num_scenarios"] == "1"
+    for r in table:
+        assert 0.0 <= float(r["driving_score"]) <= 100.0 and 0.0 <= float(r["success_rate"]) <= 100.0
+        assert float(r["l2_2s"]) >= 0.0 and int(r["openloop_samples"]) > 0
+    assert (tmp_path / "trend.png").stat().st_size > 1000
+    # Resumable: a rerun reuses the rows.
+    again = run_trend(tiny_run, tmp_path, suite=str(TINY), split="train", limit=1, print_fn=msgs.append)
+    assert again == rows and sum("reused" in m for m in msgs) == 2
