@@ -16,6 +16,7 @@ _LAZY = {
     "evaluate": ("drivee2e_jax.evaluation", "evaluate"),
     "load_policy": ("drivee2e_jax.policy", "load_policy"),
     "metrics": ("drivee2e_jax.metrics", None),
+    "enable_compile_cache": ("drivee2e_jax.compile_cache", "enable"),
 }
 
 

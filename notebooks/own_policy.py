@@ -35,8 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import drivee2e_jax as de
-from drivee2e_jax.policy import StatelessPolicy, load_policy
-from drivee2e_jax.types import SignalState, Waypoints
+from drivee2e_jax.policy import load_policy
+
+de.enable_compile_cache()  # reruns reuse compiled rollouts from disk (drivee2e_jax/compile_cache.py)
 
 ROOT = Path(__file__).resolve().parents[1] if "__file__" in globals() else Path.cwd().parent
 SUITE = os.environ.get("DRIVEE2E_OWN_POLICY_SUITE", "twin15")

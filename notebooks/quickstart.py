@@ -19,6 +19,8 @@ import numpy as np
 import drivee2e_jax as de
 from drivee2e_jax.policy import load_policy
 
+de.enable_compile_cache()  # reruns reuse compiled rollouts from disk (drivee2e_jax/compile_cache.py)
+
 ROOT = Path(__file__).resolve().parents[1] if "__file__" in globals() else Path.cwd().parent
 SUITE = os.environ.get("DRIVEE2E_QUICKSTART_SUITE", "twin15")
 SPLIT = os.environ.get("DRIVEE2E_QUICKSTART_SPLIT", "val")
@@ -73,3 +75,30 @@ print("events:", events[:3])
 logs = results["expert"].logs
 speed = np.where(logs.active, logs.speed, np.nan)
 print("expert mean speed per episode, m/s:", np.round(np.nanmean(speed, axis=1)[:8], 2))
+
+# %% [markdown]
+# ## 5. The main job, and looking at an episode
+# `run_bench` is what `drivee2e bench` runs: it writes a resumable results
+# folder (per-scenario CSV/JSON, summary, report with plots). From that folder
+# `trace_episodes` re-simulates chosen episodes exactly (checking the stored
+# Driving Score) and `write_player` turns them into one self-contained HTML
+# player (`drivee2e view` on the command line; `drivee2e export-mcap` writes
+# the same episodes for Foxglove).
+
+# %%
+import tempfile
+
+from drivee2e_jax.bench import BenchConfig, run_bench
+from drivee2e_jax.io.episodes import trace_episodes
+from drivee2e_jax.viz.player import write_player
+
+out = Path(tempfile.mkdtemp()) / "results"
+summary = run_bench(BenchConfig(suite=SUITE, split=SPLIT, policies=(str(ROOT / "policies" / "expert.py"),),
+                                out=out, limit=LIMIT, progress=False), print_fn=lambda line: None)
+print("results folder:", sorted(p.name for p in out.iterdir()))
+first_id = row["scenario_id"]
+traces = trace_episodes(out, "expert", [first_id], sensors=("bev",))
+tr = traces[0]
+print(f"trace of {first_id}: {tr.times.shape[0]} states, ego at t=0 {np.round(tr.ego_xy[0], 2).tolist()}")
+player = write_player(traces, out / "player.html")
+print(f"player: {player} ({player.stat().st_size // 1024} KiB) - open it in a browser")

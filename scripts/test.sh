@@ -3,4 +3,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python -m pip install --quiet -e ".[test]"
-python -m pytest "$@"
+# Two workers by default (PYTEST_WORKERS=0 runs in one process): compiling
+# dominates test time and XLA compiles on one thread.
+python -m pytest -n "${PYTEST_WORKERS:-2}" "$@"

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,13 +16,14 @@ import pytest
 
 def pytest_configure(config):
     """JAX's persistent compilation cache: reruns (and CI on the same machine)
-    reuse compiled rollouts instead of recompiling every jit from scratch."""
-    import jax
+    reuse compiled rollouts instead of recompiling every jit from scratch. The
+    folder is pinned in ``$DRIVEE2E_JAX_CACHE`` so tests that move
+    ``$DRIVEE2E_CACHE`` and the subprocesses they start keep sharing it."""
+    from drivee2e_jax import compile_cache
 
-    base = os.environ.get("DRIVEE2E_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "drivee2e")
-    if base.lower() != "off":
-        jax.config.update("jax_compilation_cache_dir", os.path.join(base, "jax"))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    path = compile_cache.enable()
+    os.environ[compile_cache.JAX_CACHE_ENV] = str(path) if path is not None else "off"
+
 
 from drivee2e_jax.scenario.records import (
     BoundaryRecord,
@@ -205,3 +207,47 @@ def drivee2e_cache(tmp_path, monkeypatch):
     path = tmp_path / "cache"
     monkeypatch.setenv("DRIVEE2E_CACHE", str(path))
     return path
+
+
+# --------------------------------------------------------------------------
+# Training tests (tests/train): a tiny demonstration dataset and a 2-epoch
+# AD-MLP run on it, built once per session (the recorder's compile dominates
+# their cost). Kept here, not in tests/train/conftest.py: a second module
+# named ``conftest`` would shadow this one for ``from conftest import ...``.
+# --------------------------------------------------------------------------
+
+_TINY_EXAMPLE = Path(__file__).resolve().parents[1] / "scenarios" / "examples" / "tiny"
+
+
+@pytest.fixture(scope="session")
+def tiny_demos(tmp_path_factory) -> Path:
+    """The tiny suite's train split (2 scenarios) recorded at 2 Hz, one shard per scenario."""
+    from drivee2e_jax.train.dataset import DatasetConfig, build_dataset
+
+    out = tmp_path_factory.mktemp("demos")
+    build_dataset(str(_TINY_EXAMPLE), "train", out, DatasetConfig(scenarios_per_shard=1))
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory, tiny_demos) -> Path:
+    """AD-MLP trained 2 epochs (batch 4) on ``tiny_demos``: 2 checkpoints."""
+    from drivee2e_jax.train.loop import train
+
+    out = tmp_path_factory.mktemp("run")
+    train(_small_config(tiny_demos), out, progress=False, print_fn=lambda s: None)
+    return out
+
+
+@pytest.fixture(scope="session")
+def small_config():
+    """``small_config(data, **overrides)`` -> the TrainConfig of ``tiny_run``."""
+    return _small_config
+
+
+def _small_config(data, **kw):
+    from drivee2e_jax.train.loop import TrainConfig
+
+    base = dict(model="ad_mlp", model_config=(("hidden", (32,)),), data=str(data), epochs=2, batch_size=4,
+                warmup_steps=2, log_every=1)
+    return TrainConfig(**{**base, **kw})

@@ -51,6 +51,8 @@ def test_quickstart_notebook_runs(tmp_path):
         assert name in out
     assert "2 scenarios in split 'train'" in out
     assert "events:" in out and "mean speed per episode" in out
+    assert "scenarios.csv" in out and "summary.json" in out
+    assert "states, ego at t=0" in out and "player.html" in out
 
 
 def test_own_policy_notebook_runs(tmp_path):

@@ -103,4 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as e:  # --help, --version, usage errors
         return e.code if isinstance(e.code, int) else (0 if e.code is None else common.EXIT_USAGE)
     args.debug = debug
+    from drivee2e_jax import compile_cache
+
+    compile_cache.enable()  # reruns, resumed sweeps and trend checkpoints reuse compiled rollouts
     return common.run(args.func, args, debug=debug)
