@@ -166,7 +166,7 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         bar.close()
         res = distributed.gather_result(res)  # every process's rows (no-op in one process)
         if cfg.open_loop and run is not None:
-            _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn)
+            _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn, suite)
         add_task_success(task, res.rows)
         events = {event_key(r): res.events[event_key(r)] for r in res.rows}
         timing_info = {"compile_s": res.compile_s, "wall_s": res.wall_s, "steps": res.steps}
@@ -224,7 +224,7 @@ OPEN_LOOP_COLUMNS = (
 )
 
 
-def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, print_fn) -> None:
+def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, print_fn, suite) -> None:
     """Add the open-loop columns to ``rows`` (null for a controls policy)."""
     import time
 
@@ -236,7 +236,8 @@ def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, pri
     from drivee2e_jax.openloop import evaluate_openloop
 
     t0 = time.perf_counter()
-    ol = evaluate_openloop(pol, packed, config=sim_cfg, seed=cfg.seed, limit=cfg.limit)
+    maps = suite.maps if "bev" in getattr(pol, "required_sensors", ()) else None
+    ol = evaluate_openloop(pol, packed, config=sim_cfg, seed=cfg.seed, limit=cfg.limit, maps=maps)
     for r in rows:
         got = ol[r["scenario_id"]]
         r.update({c: (got[c] if _finite(got[c]) else None) for c in OPEN_LOOP_COLUMNS})

@@ -45,7 +45,8 @@ from flax import struct
 
 from drivee2e_jax import geometry, replay
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.evaluation import device_batch
+from drivee2e_jax.evaluation import device_batch, with_policy_sensors
+from drivee2e_jax.observe import sensors
 from drivee2e_jax.metrics import openloop as olm
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Controls, Waypoints
@@ -152,11 +153,12 @@ def _cached(cache: dict, key, build):
 
 
 def _make_runner(sim: Simulator, policy, horizon: int, waypoint_dt: float, every: int, n_queries: int,
-                 policy_dt: float, full_future: bool):
-    """jit(vmap(one scenario)): (batch, sim states, obs, keys, params) -> OpenLoopFacts (B, N, ...)."""
+                 policy_dt: float, full_future: bool, axes):
+    """jit(vmap(one scenario)): (batch, sim states, obs, keys, sensor assets, params) -> OpenLoopFacts
+    (B, N, ...); ``axes`` = ``sensors.assets_axes`` of the assets."""
     offsets = waypoint_dt * jnp.arange(1, horizon + 1, dtype=jnp.float32)
 
-    def one(scenario, state, obs, key, params):
+    def one(scenario, state, obs, key, assets, params):
         tracks = scenario.tracks
         ego_i = scenario.ego_index
         dt_log = scenario.dt_log
@@ -204,7 +206,7 @@ def _make_runner(sim: Simulator, policy, horizon: int, waypoint_dt: float, every
                 brake=jnp.where(ok, c.brake, 1.0),
                 steer=jnp.where(ok, c.steer, 0.0),
             )
-            st, ob, _ = sim.step(scenario, st, action)
+            st, ob, _ = sim.step(scenario, st, action, assets)
             return (st, ob), None
 
         def outer(carry, _):
@@ -217,7 +219,7 @@ def _make_runner(sim: Simulator, policy, horizon: int, waypoint_dt: float, every
         _, facts = jax.lax.scan(outer, (state, obs, pstate, key), None, length=n_queries)
         return facts
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None)))
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, axes, None)))
 
 
 def collect_openloop(
@@ -233,6 +235,7 @@ def collect_openloop(
     every: int = 5,
     full_future: bool = True,
     measure: bool = False,
+    maps: dict | None = None,
 ) -> OpenLoopRun:
     """Run the open-loop replay and return the per-query facts (host numpy).
 
@@ -242,15 +245,24 @@ def collect_openloop(
     _check_args(policy, horizon, waypoint_dt, every)
     if hasattr(packed, "pack"):
         raise DriveE2EError("evaluate_openloop expects a PackedBatch (e.g. suite.pack('val')), got a Suite")
-    batch, meta = device_batch(packed, limit)
-    sim = Simulator(config or SimConfig())
+    if limit is not None:
+        packed = packed.select(np.arange(min(limit, len(packed))))
+    # The sensors the policy declares are rendered from the replayed ego, as in closed loop.
+    cfg = with_policy_sensors(config or SimConfig(), policy)
+    if cfg.sensors.bev is not None and maps is None:
+        raise DriveE2EError(f"open-loop scoring of {getattr(policy, 'name', '?')!r} renders its BEV: pass the "
+                            "suite's maps (maps=suite.maps)")
+    assets = sensors.build_assets(packed, cfg.sensors, maps)
+    axes = sensors.assets_axes(assets)
+    batch, meta = device_batch(packed)
+    sim = Simulator(cfg)
     b = int(batch.ego_index.shape[0])
     key = jax.random.PRNGKey(seed)
     k_init, k_reset, k_run = jax.random.split(key, 3)
 
     t0 = time.perf_counter()
-    reset = _cached(_RESETS, sim.config, lambda: jax.jit(jax.vmap(sim.reset)))
-    states, obs = reset(jax.random.split(k_reset, b), batch)
+    reset = _cached(_RESETS, sim.config, lambda: jax.jit(jax.vmap(sim.reset, in_axes=(0, 0, axes))))
+    states, obs = reset(jax.random.split(k_reset, b), batch, assets)
     obs0 = jax.tree_util.tree_map(lambda a: a[0], obs)
     if params is None:
         params = policy.init(k_init, obs0)
@@ -276,16 +288,16 @@ def collect_openloop(
     run = _cached(
         _RUNNERS,
         (policy, sim.config, horizon, float(waypoint_dt), every, n_queries, policy_dt, bool(full_future)),
-        lambda: _make_runner(sim, policy, horizon, float(waypoint_dt), every, n_queries, policy_dt, full_future),
+        lambda: _make_runner(sim, policy, horizon, float(waypoint_dt), every, n_queries, policy_dt, full_future, axes),
     )
     keys = jax.random.split(k_run, b)
-    facts = run(batch, states, obs, keys, params)
+    facts = run(batch, states, obs, keys, assets, params)
     facts = jax.tree_util.tree_map(np.asarray, facts)
     compile_s = time.perf_counter() - t0
     wall_s = 0.0
     if measure:
         t1 = time.perf_counter()
-        jax.block_until_ready(run(batch, states, obs, keys, params))
+        jax.block_until_ready(run(batch, states, obs, keys, assets, params))
         wall_s = time.perf_counter() - t1
     ids = [str(s) for s in meta.scenario_id.tolist()]
     return OpenLoopRun(facts=facts, scenario_ids=ids, horizon=horizon, waypoint_dt=float(waypoint_dt),
@@ -355,6 +367,7 @@ def evaluate_openloop(
     waypoint_dt: float = 0.5,
     every: int = 5,
     full_future: bool = True,
+    maps: dict | None = None,
 ) -> dict[str, dict]:
     """Open-loop metrics of a waypoint policy on the logged demonstrations.
 
@@ -371,6 +384,9 @@ def evaluate_openloop(
       every: query the policy every ``every`` simulation steps (5 x 0.1 s = 2 Hz).
       full_future: count only queries whose whole future is logged (VAD);
         False = UniAD's rule (masked steps give 0, the sample counts).
+      maps: {map_id: MapRecord} (``suite.maps``), needed when the policy
+        declares the BEV in ``required_sensors``; its sensors are rendered
+        from the replayed ego as in closed loop.
 
     Returns scenario_id -> {"l2_1s_stp3", "l2_2s_stp3", "l2_3s_stp3",
     "l2_1s_uniad", "l2_2s_uniad", "l2_3s_uniad", "openloop_collision_rate",
@@ -381,5 +397,5 @@ def evaluate_openloop(
     the horizon, or bad arguments.
     """
     run = collect_openloop(policy, packed, params=params, config=config, seed=seed, limit=limit,
-                           horizon=horizon, waypoint_dt=waypoint_dt, every=every, full_future=full_future)
+                           horizon=horizon, waypoint_dt=waypoint_dt, every=every, full_future=full_future, maps=maps)
     return summarize(run)

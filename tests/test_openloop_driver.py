@@ -136,3 +136,31 @@ def test_constant_velocity_arc_and_controller(cv):
     params = ctl.ControllerParams()
     controls, _ = ctl.waypoints_to_controls(jnp.asarray(xy), jnp.float32(v), ctl.init_controller_state(params), params)
     assert float(controls.brake) == 0.0 and float(controls.steer) > 0.0
+
+
+class BevCount(StatelessPolicy):
+    """Waypoints 5 m apart straight ahead; reads ``obs.bev``, so it fails to
+    trace when the open-loop driver does not render the BEV."""
+
+    name = "bev_count"
+    action_type = "waypoints"
+    waypoint_dt = 0.5
+    required_sensors = ("bev",)
+
+    def act(self, params, obs, policy_state, key):
+        seen = jnp.sum(obs.bev != 0).astype(jnp.float32)
+        x = (5.0 + 0.0 * seen) * jnp.arange(1, 7, dtype=jnp.float32)
+        return Waypoints(xy=jnp.stack([x, jnp.zeros_like(x)], axis=-1)), policy_state
+
+
+def test_a_bev_policy_is_scored_open_loop_with_its_sensors_rendered():
+    from drivee2e_jax.scenario import load_suite
+
+    suite = load_suite(POLICIES.parent / "scenarios" / "examples" / "tiny")
+    packed = suite.pack("train")
+    with pytest.raises(DriveE2EError, match="maps"):
+        evaluate_openloop(BevCount(), packed, limit=1)
+    got = evaluate_openloop(BevCount(), packed, limit=1, maps=suite.maps)
+    (only,) = got.values()
+    assert only["openloop_samples"] > 0
+    assert all(np.isfinite(only[k]) for k in L2_KEYS)

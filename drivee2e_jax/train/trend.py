@@ -43,7 +43,7 @@ def evaluate_checkpoint(policy, params, packed, maps, *, limit: int | None, seed
     from drivee2e_jax.openloop import evaluate_openloop
 
     res = evaluate(policy, packed, None, params=params, seed=seed, limit=limit, maps=maps)
-    ol = evaluate_openloop(policy, packed, params=params, seed=seed, limit=limit)
+    ol = evaluate_openloop(policy, packed, params=params, seed=seed, limit=limit, maps=maps)
     rows = [{**r, **{c: ol[r["scenario_id"]][c] for c in OPEN_LOOP_COLUMNS}} for r in res.rows]
     s = summary_of(rows)
     return {
