@@ -75,6 +75,27 @@ def test_own_policy_notebook_runs(tmp_path):
     assert "episode status:" in out
 
 
+def test_trend_notebook_runs(tmp_path):
+    env = dict(
+        os.environ,
+        DRIVEE2E_TREND_SUITE=str(EXAMPLE),
+        DRIVEE2E_TREND_TRAIN_SPLIT="train",
+        DRIVEE2E_TREND_EVAL_SPLIT="train",
+        DRIVEE2E_TREND_LIMIT="2",
+        DRIVEE2E_TREND_EPOCHS="2",
+        DRIVEE2E_CACHE=os.environ.get("DRIVEE2E_CACHE", str(tmp_path / "cache")),
+    )
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "notebooks" / "trend.py")], capture_output=True, text=True, env=env, timeout=900
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = proc.stdout
+    assert "trained 2 epochs" in out and "checkpoints: ['1', '2']" in out
+    rows = [ln.split() for ln in out.splitlines() if ln.strip()[:1] in ("1", "2") and len(ln.split()) == 5]
+    assert [r[0] for r in rows] == ["1", "2"]  # one trend row per checkpoint, in epoch order
+    assert "trend.csv columns: ['checkpoint', 'epoch'" in out and "lowest L2@2s at epoch" in out
+
+
 def test_public_evaluate_stays_a_function_after_its_module_is_imported():
     import drivee2e_jax as de
     import drivee2e_jax.evaluation  # noqa: F401  (a submodule import must not shadow de.evaluate)
