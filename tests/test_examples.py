@@ -34,19 +34,20 @@ def test_example_suite_validates(capsys):
     assert main(["suite", "validate", str(EXAMPLE)]) == 0
 
 
-def test_quickstart_notebook_runs(tmp_path):
-    env = dict(
-        os.environ,
-        DRIVEE2E_QUICKSTART_SUITE=str(EXAMPLE),
-        DRIVEE2E_QUICKSTART_SPLIT="train",
-        DRIVEE2E_QUICKSTART_LIMIT="2",
-        DRIVEE2E_CACHE=os.environ.get("DRIVEE2E_CACHE", str(tmp_path / "cache")),
-    )
+def _run_notebook(name: str, tmp_path: Path, **settings: str) -> str:
+    """Execute ``notebooks/<name>.py`` with ``settings`` as environment
+    variables (its own cache unless one is set); returns its stdout."""
+    env = dict(os.environ, DRIVEE2E_CACHE=os.environ.get("DRIVEE2E_CACHE", str(tmp_path / "cache")), **settings)
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "notebooks" / "quickstart.py")], capture_output=True, text=True, env=env, timeout=900
+        [sys.executable, str(ROOT / "notebooks" / f"{name}.py")], capture_output=True, text=True, env=env, timeout=900
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    out = proc.stdout
+    return proc.stdout
+
+
+def test_quickstart_notebook_runs(tmp_path):
+    out = _run_notebook("quickstart", tmp_path, DRIVEE2E_QUICKSTART_SUITE=str(EXAMPLE),
+                        DRIVEE2E_QUICKSTART_SPLIT="train", DRIVEE2E_QUICKSTART_LIMIT="2")
     for name in ("log_replay", "expert", "stop"):
         assert name in out
     assert "2 scenarios in split 'train'" in out
@@ -56,18 +57,8 @@ def test_quickstart_notebook_runs(tmp_path):
 
 
 def test_own_policy_notebook_runs(tmp_path):
-    env = dict(
-        os.environ,
-        DRIVEE2E_OWN_POLICY_SUITE=str(EXAMPLE),
-        DRIVEE2E_OWN_POLICY_SPLIT="train",
-        DRIVEE2E_OWN_POLICY_LIMIT="2",
-        DRIVEE2E_CACHE=os.environ.get("DRIVEE2E_CACHE", str(tmp_path / "cache")),
-    )
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "notebooks" / "own_policy.py")], capture_output=True, text=True, env=env, timeout=900
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    out = proc.stdout
+    out = _run_notebook("own_policy", tmp_path, DRIVEE2E_OWN_POLICY_SUITE=str(EXAMPLE),
+                        DRIVEE2E_OWN_POLICY_SPLIT="train", DRIVEE2E_OWN_POLICY_LIMIT="2")
     assert "loaded route_follower -> waypoints" in out
     assert "waypoints (2, 6, 2)" in out
     for name in ("route_follower", "expert", "stop"):
@@ -76,20 +67,8 @@ def test_own_policy_notebook_runs(tmp_path):
 
 
 def test_trend_notebook_runs(tmp_path):
-    env = dict(
-        os.environ,
-        DRIVEE2E_TREND_SUITE=str(EXAMPLE),
-        DRIVEE2E_TREND_TRAIN_SPLIT="train",
-        DRIVEE2E_TREND_EVAL_SPLIT="train",
-        DRIVEE2E_TREND_LIMIT="2",
-        DRIVEE2E_TREND_EPOCHS="2",
-        DRIVEE2E_CACHE=os.environ.get("DRIVEE2E_CACHE", str(tmp_path / "cache")),
-    )
-    proc = subprocess.run(
-        [sys.executable, str(ROOT / "notebooks" / "trend.py")], capture_output=True, text=True, env=env, timeout=900
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    out = proc.stdout
+    out = _run_notebook("trend", tmp_path, DRIVEE2E_TREND_SUITE=str(EXAMPLE), DRIVEE2E_TREND_TRAIN_SPLIT="train",
+                        DRIVEE2E_TREND_EVAL_SPLIT="train", DRIVEE2E_TREND_LIMIT="2", DRIVEE2E_TREND_EPOCHS="2")
     assert "trained 2 epochs" in out and "checkpoints: ['1', '2']" in out
     rows = [ln.split() for ln in out.splitlines() if ln.strip()[:1] in ("1", "2") and len(ln.split()) == 5]
     assert [r[0] for r in rows] == ["1", "2"]  # one trend row per checkpoint, in epoch order
