@@ -1,11 +1,26 @@
 """Waypoint action path: ego-frame waypoints -> CARLA-style controls.
 
-Longitudinal control is TCP's (Wu et al. 2022, ``TCP/model.py control_pid``;
-the same rule as TransFuser): the desired speed is read from the spacing of
-the first two waypoints, a PID with a moving-window integral drives the
-throttle on the speed error clipped to [0, clip_delta], and the controller
-brakes fully when the desired speed is below ``brake_speed`` or the ego is
-faster than ``brake_ratio`` times the desired speed.
+Longitudinal control is TCP's PID (Wu et al. 2022, ``TCP/model.py
+control_pid``; the same rule as TransFuser) plus our drag feed-forward:
+
+* TCP's: the desired speed is read from the spacing of the first two
+  waypoints; a PID with a moving-window integral drives the throttle on the
+  speed error clipped to ``clip_delta``; the controller brakes fully when the
+  desired speed is below ``brake_speed`` or the ego is faster than
+  ``brake_ratio`` times the desired speed. Gains and thresholds are TCP's.
+* Ours (``feedforward=True``, the default): the throttle
+  ``drag(target) / max_accel`` that cancels our bicycle's resistance
+  (``dynamics.drag``) at the desired speed is added to the PID output, and
+  the error is clipped to ``[-clip_delta, clip_delta]`` instead of TCP's
+  ``[0, clip_delta]``. Why: TCP's PID only pushes while the ego is slower
+  than the plan, so a plan at the ego's current speed (what a constant-
+  velocity extrapolation or a learned planner consistent with its input
+  speed predicts) gives ~0 throttle and the car coasts down under drag
+  (~0.3 m/s^2 at 11 m/s: 41 -> 27 km/h in 12 s). With the feed-forward the
+  plan's speed is an equilibrium; the two-sided error lets the PID take the
+  throttle back below the feed-forward after an overshoot, which TCP leaves
+  to drag, and drag is exactly what the feed-forward cancels.
+  ``feedforward=False`` is TCP's rule unchanged (for ablations).
 
 Lateral control is pure pursuit on our bicycle's rear axle (instead of TCP's
 angle PID, whose gains are tuned to CARLA's steering response): aim at the
@@ -14,6 +29,7 @@ extrapolated past the last waypoint) and command the front-wheel angle whose
 rear-axle arc passes through it. On an exact kinematic bicycle this tracks
 circles without steady-state error and needs no integrator.
 
+Both use ``params.vehicle`` (the Simulator sets it to its dynamics).
 Unbatched and jit-friendly; the brake decision is a hard switch (as in TCP),
 so the controls are not differentiable through it.
 """
@@ -23,7 +39,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from flax import struct
 
-from drivee2e_jax.dynamics import BicycleParams
+from drivee2e_jax.dynamics import BicycleParams, drag
 from drivee2e_jax.types import Controls
 
 Array = jnp.ndarray
@@ -37,8 +53,12 @@ class ControllerParams:
       kp, ki, kd:     longitudinal PID gains on the speed error (TCP values).
       window:         PID integral window, steps (static: sets a shape).
       clip_delta:     m/s, the speed error fed to the PID is clipped to
-                      [0, clip_delta] (TCP), so overshoot is left to drag
-                      and the brake rule.
+                      [-clip_delta, clip_delta] with the feed-forward, to
+                      [0, clip_delta] without it (TCP: overshoot is left to
+                      drag and the brake rule).
+      feedforward:    add the throttle drag(target) / max_accel that holds
+                      the desired speed on ``vehicle`` (ours; static).
+                      False = TCP's PID exactly.
       max_throttle:   upper throttle limit.
       brake_speed:    m/s, desired speeds below this brake fully.
       brake_ratio:    brake fully when speed > brake_ratio * desired speed.
@@ -50,7 +70,8 @@ class ControllerParams:
                       point is the first waypoint itself: aiming between sparse
                       waypoints would cut the chord (0.6 s doubled the
                       closed-loop error on a 25 m radius curve).
-      vehicle:        the bicycle whose geometry the pursuit inverts.
+      vehicle:        the bicycle whose drag the feed-forward cancels and whose
+                      geometry the pursuit inverts.
     """
 
     kp: float = 5.0
@@ -58,6 +79,7 @@ class ControllerParams:
     kd: float = 1.0
     window: int = struct.field(pytree_node=False, default=40)
     clip_delta: float = 0.25
+    feedforward: bool = struct.field(pytree_node=False, default=True)
     max_throttle: float = 0.75
     brake_speed: float = 0.4
     brake_ratio: float = 1.1
@@ -122,16 +144,20 @@ def waypoints_to_controls(
     """
     target = desired_speed(waypoints_xy, params)
 
-    # Longitudinal: TCP's clipped-error PID with a moving-window integral.
-    error = jnp.clip(target - speed, 0.0, params.clip_delta)
+    veh = params.vehicle
+
+    # Longitudinal: TCP's clipped-error PID with a moving-window integral, on
+    # top of the throttle that cancels drag at the desired speed (ours).
+    lowest = -params.clip_delta if params.feedforward else 0.0
+    error = jnp.clip(target - speed, lowest, params.clip_delta)
     errors = jnp.concatenate([state.errors[1:], error[None]])
     pid = params.kp * error + params.ki * jnp.mean(errors) + params.kd * (errors[-1] - errors[-2])
+    hold = drag(target, veh) / veh.max_accel if params.feedforward else 0.0
     brake = (target < params.brake_speed) | (speed > params.brake_ratio * target)
-    throttle = jnp.where(brake, 0.0, jnp.clip(pid, 0.0, params.max_throttle))
+    throttle = jnp.where(brake, 0.0, jnp.clip(hold + pid, 0.0, params.max_throttle))
 
     # Lateral: pure pursuit from the rear axle (lr behind the box centre),
     # curvature 2 y / d^2 of the arc through the aim point, tan(delta) = L k.
-    veh = params.vehicle
     lookahead = jnp.clip(params.lookahead_time * speed, params.lookahead_min, params.lookahead_max)
     aim = lookahead_point(waypoints_xy, lookahead)
     x_rear, y = aim[0] + veh.lr, aim[1]
