@@ -154,12 +154,33 @@ def device_batch(packed, limit: int | None = None):
 
 def with_policy_sensors(config: SimConfig, policy) -> SimConfig:
     """``config`` with the sensors ``policy.required_sensors`` lists turned on
-    (at ``config.sensors``' sizes, else the defaults); others as configured."""
+    (at ``config.sensors``' sizes, else the policy's ``sensor_config`` sizes,
+    else the defaults); others as configured.
+
+    A policy whose ``sensor_config`` fixes a sensor's size (a model policy:
+    the BEV of its training data) refuses a ``config`` that sets another
+    size for it: a one-line DriveE2EError, not a silently different input.
+    """
+    from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.models.base import bev_label
+
     required = tuple(getattr(policy, "required_sensors", ()) or ())
     if not required:
         return config
+    own = getattr(policy, "sensor_config", None)
+    chosen = config.sensors
+    for name in required:
+        fixed = None if own is None else getattr(own, name, None)
+        configured = getattr(config.sensors, name, None)
+        if fixed is None or configured == fixed:
+            continue
+        if configured is not None:
+            size = bev_label if name == "bev" else repr
+            raise DriveE2EError(f"policy {getattr(policy, 'name', '?')!r}: SimConfig.sensors.{name} is {size(configured)} "
+                                f"but the policy was trained on {size(fixed)}; leave it unset or set that one")
+        chosen = dataclasses.replace(chosen, **{name: fixed})
     want = set(required) | set(config.sensors.enabled)
-    return dataclasses.replace(config, sensors=sensors.SensorConfig.for_policy(tuple(want), config.sensors))
+    return dataclasses.replace(config, sensors=sensors.SensorConfig.for_policy(tuple(want), chosen))
 
 
 def _init_params(policy, sim: Simulator, batch, key, assets=None):

@@ -6,8 +6,8 @@ Needs a trained checkpoint (``drivee2e train --model ad_mlp ... --out RUN``)::
     policy = load_policy("policies/ad_mlp.py", checkpoint="runs/ad_mlp")
 
 ``checkpoint`` is a run folder (its last epoch), ``RUN/checkpoints`` or one
-``RUN/checkpoints/<epoch>``; the model config comes from the run's
-``config.json``. Without a checkpoint the environment variable
+``RUN/checkpoints/<epoch>``; the model config comes from the checkpoint
+(``models.base.policy_from_checkpoint``). Without a checkpoint the environment variable
 ``DRIVEE2E_AD_MLP_CHECKPOINT`` is used (so ``drivee2e bench --policy
 policies/ad_mlp.py`` works); with neither, a one-line error names both.
 See drivee2e_jax/models/ad_mlp.py for the network.
@@ -21,15 +21,9 @@ ENV = "DRIVEE2E_AD_MLP_CHECKPOINT"
 
 
 def make_policy(checkpoint=None):
-    from drivee2e_jax.models.base import as_policy
-    from drivee2e_jax.train import checkpoint as ckpt
-    from drivee2e_jax.train.loop import model_of_run
+    from drivee2e_jax.models.base import policy_from_checkpoint
 
     checkpoint = checkpoint or os.environ.get(ENV)
     if not checkpoint:
         raise DriveE2EError(f"policies/ad_mlp.py: no checkpoint (pass make_policy(checkpoint=RUN_DIR) or set ${ENV})")
-    ck = ckpt.resolve(checkpoint)
-    model = model_of_run(ck.parents[1])
-    if model.name != "ad_mlp":
-        raise DriveE2EError(f"{checkpoint}: a {model.name!r} run, expected an ad_mlp run")
-    return as_policy(model, ckpt.load_params(ck), "traj")
+    return policy_from_checkpoint("ad_mlp", checkpoint, "traj")

@@ -5,9 +5,9 @@ Extrapolates the ego's current speed and yaw rate (``Observation.ego``) for
 rate) the ego would follow if neither changed. No privileged input.
 
 In closed loop the waypoints go through the simulator's waypoint controller
-(PID on the spacing of the first two points = the current speed, pure pursuit
-on the arc), so it holds its speed and curvature and never brakes for
-anything: a lower bound for reactive driving, a strong baseline for open-loop
+(PID + drag feed-forward on the spacing of the first two points = the current
+speed, pure pursuit on the arc), so it holds its speed and curvature and
+never brakes for anything: a lower bound for reactive driving, a strong baseline for open-loop
 L2 (as ST-P3 / AD-MLP showed on nuScenes). A standing ego stays standing.
 """
 

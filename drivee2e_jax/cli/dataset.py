@@ -10,6 +10,7 @@ EPILOG = """\
 examples:
   drivee2e dataset build --suite twin15 --split train --out data/demos-train
   drivee2e dataset build --suite twin15 --split train --sensors bev --out data/demos-train-bev
+  drivee2e dataset build --suite twin15 --split train --sensors bev --bev-size 64 --out data/demos-train-bev64
   drivee2e dataset build --suite twin15 --split val --limit 20 --every 10 --out data/demos-val20
   drivee2e dataset info data/demos-train
 
@@ -18,6 +19,11 @@ build rolls log_replay over the split and records every --every-th step (5 x
 --sensors and the ego's 4 s history) and the label (6 logged future waypoints
 0.5 s apart, the log-reproducing controls, the route command), as .npz shards
 plus manifest.json. Train on it with `drivee2e train --data DIR`.
+The BEV is rendered --bev-size px square at --bev-resolution m/px (default
+128 at 0.5 = 64 m; a size alone keeps the 64 m extent): give TCP its own 64 x
+64 at 1 m/px with --bev-size 64. The manifest records it; training refuses a
+model that cannot read it, and a policy restored from the checkpoint is
+evaluated at the same BEV.
 """
 
 
@@ -30,6 +36,9 @@ def add_parser(subparsers) -> None:
     b.add_argument("--suite", default="twin15", help="suite name or folder (default: twin15)")
     b.add_argument("--split", default="train", help="split (default: train)")
     b.add_argument("--sensors", default="", help="comma-separated sensors to render: bev, lidar (default: none)")
+    b.add_argument("--bev-size", type=int, default=128, help="BEV side, px (default: 128)")
+    b.add_argument("--bev-resolution", type=float, default=None,
+                   help="BEV m/px (default: 64 m / --bev-size, i.e. 0.5 at 128, 1.0 at 64)")
     b.add_argument("--every", type=int, default=5, help="record every k-th 0.1 s step (default: 5 = 2 Hz)")
     b.add_argument("--limit", type=int, default=None, help="only the first N scenarios")
     b.add_argument("--shard", type=int, default=25, help="scenarios per shard (default: 25)")
@@ -47,7 +56,8 @@ def run_build(args) -> int:
     from drivee2e_jax.train.dataset import DatasetConfig, build_dataset
 
     sensors = tuple(s.strip() for s in args.sensors.split(",") if s.strip())
-    cfg = DatasetConfig(sensors=sensors, every=args.every, scenarios_per_shard=args.shard)
+    cfg = DatasetConfig(sensors=sensors, every=args.every, scenarios_per_shard=args.shard, bev_size=args.bev_size,
+                        bev_resolution=args.bev_resolution)
     bar = progress(total=None, desc="scenarios", disable=True if args.no_progress else None)
 
     def update(done, total):
@@ -71,6 +81,11 @@ def run_info(args) -> int:
 def _summary(m: dict, path) -> str:
     leaves = ", ".join(f"{k}{tuple(v['shape'])}" for k, v in m["leaves"].items() if k.startswith("obs.") and
                        k.split(".")[1] in ("bev", "lidar", "history", "agents", "lanes"))
+    from drivee2e_jax.models.base import bev_label
+    from drivee2e_jax.train.dataset import bev_of_manifest
+
+    bev = bev_of_manifest(m)
     return (f"{path}: {m['suite']} v{m['suite_version']} {m['split']}, {m['num_scenarios']} scenarios, "
             f"{m['count']} samples in {len(m['shards'])} shards, {m['bytes'] / 1e6:.1f} MB, sensors "
-            f"{','.join(m['sensors']) or 'none'}, built in {m['build_s']:.0f} s; {leaves}")
+            f"{','.join(m['sensors']) or 'none'}{f' (BEV {bev_label(bev)})' if bev else ''}, "
+            f"built in {m['build_s']:.0f} s; {leaves}")

@@ -230,28 +230,49 @@ def waypoint_l2(pred: jnp.ndarray, target: Target) -> jnp.ndarray:
 
 
 class PolicyState(NamedTuple):
-    """``as_policy``'s recurrent state: the ego history and, in the fused
-    mode, the waypoint controller's PID memory."""
+    """``as_policy``'s recurrent state.
+
+    Attributes:
+      history: the ego history (``EgoHistory``).
+      controller: the fused mode's waypoint-controller PID memory.
+      fused_steers: (FUSE_WINDOW,) float32 |steer| of the last fused actions,
+        oldest first (zeros before the first), TCP's turning memory.
+    """
 
     history: EgoHistory
     controller: ctl.ControllerState
+    fused_steers: jnp.ndarray
 
 
-#: TCP's situation-based fusion: when the trajectory branch steers more than
-#: this (|steer| in [-1, 1]) the car is turning and the control branch leads.
+#: TCP's situation-based fusion: a steer above this (|steer| in [-1, 1])
+#: counts as turning ...
 FUSE_TURN_STEER = 0.1
+#: ... and the car is turning (the control branch leads) when more than
+#: FUSE_TURN_COUNT of the last FUSE_WINDOW fused actions steered so
+#: (``tcp_agent.py``: 20 frames, > 10 of them).
+FUSE_WINDOW = 20
+FUSE_TURN_COUNT = 10
 #: Weight of the trailing branch in the blend.
 FUSE_ALPHA = 0.3
 
 
-def fuse_controls(traj: Controls, ctrl: Controls) -> Controls:
+def is_turning(fused_steers: jnp.ndarray) -> jnp.ndarray:
+    """() bool TCP's turning status from the |steer| of the last fused
+    actions (``PolicyState.fused_steers``)."""
+    return jnp.sum(fused_steers > FUSE_TURN_STEER) > FUSE_TURN_COUNT
+
+
+def fuse_controls(traj: Controls, ctrl: Controls, turning: jnp.ndarray | None = None) -> Controls:
     """TCP's fused action (Wu et al. 2022, ``tcp_agent.py``).
 
-    Going straight (|traj steer| <= 0.1) trust the trajectory branch: steer
-    and throttle = 0.7 traj + 0.3 ctrl; turning: 0.7 ctrl + 0.3 traj. Brake =
-    the larger of the two; throttle capped at 0.75 as TCP does.
+    Going straight trust the trajectory branch: steer and throttle = 0.7
+    traj + 0.3 ctrl; turning: 0.7 ctrl + 0.3 traj. Brake = the larger of the
+    two; throttle capped at 0.75 as TCP does. ``turning``: () bool, TCP's
+    status from its recent steers (``is_turning``); None: the memoryless
+    rule |traj steer| > 0.1.
     """
-    turning = jnp.abs(traj.steer) > FUSE_TURN_STEER
+    if turning is None:
+        turning = jnp.abs(traj.steer) > FUSE_TURN_STEER
     w_ctrl = jnp.where(turning, 1.0 - FUSE_ALPHA, FUSE_ALPHA)
     steer = jnp.clip(w_ctrl * ctrl.steer + (1.0 - w_ctrl) * traj.steer, -1.0, 1.0)
     throttle = jnp.clip(w_ctrl * ctrl.throttle + (1.0 - w_ctrl) * traj.throttle, 0.0, 0.75)
@@ -259,10 +280,19 @@ def fuse_controls(traj: Controls, ctrl: Controls) -> Controls:
 
 
 class ModelPolicy:
-    """A ``policy.Policy`` driving with a trained ``Model`` (see ``as_policy``)."""
+    """A ``policy.Policy`` driving with a ``Model`` (see ``as_policy``).
 
-    def __init__(self, model: Model, params, mode: Mode = "traj",
-                 controller: ctl.ControllerParams | None = None, name: str | None = None):
+    Attributes (besides the Policy protocol's):
+      model, params (None: ``init`` draws a fresh random init), mode.
+      controller: ``ControllerParams`` of the fused mode's trajectory branch.
+      sensor_config: ``observe.sensors.SensorConfig`` fixing the size the
+        required sensors are rendered at (the BEV of the training data,
+        ``policy_from_checkpoint``), or None: the simulator's.
+    """
+
+    def __init__(self, model: Model, params=None, mode: Mode = "traj",
+                 controller: ctl.ControllerParams | None = None, name: str | None = None,
+                 sensor_config=None):
         if mode not in ("traj", "ctrl", "fused"):
             raise ValueError(f"as_policy: mode must be 'traj', 'ctrl' or 'fused', got {mode!r}")
         self.model, self.params, self.mode = model, params, mode
@@ -271,14 +301,21 @@ class ModelPolicy:
         self.waypoint_dt = float(model.waypoint_dt)
         self.required_sensors = tuple(getattr(model, "required_sensors", ()) or ())
         self.controller = controller or ctl.ControllerParams(waypoint_dt=self.waypoint_dt)
+        self.sensor_config = sensor_config
+        if sensor_config is not None:
+            check_bev(sensor_config.bev, model, f"policy {self.name!r}")
 
     def init(self, key, obs):
-        return self.params
+        """The restored parameters, or a fresh random init of the model when
+        there are none (smoke tests only)."""
+        if self.params is not None:
+            return self.params
+        return self.model.init(key, with_history(obs, push_history(empty_history(obs), obs)))
 
     # Equal policies share compiled programs (``openloop``'s runner cache):
     # the parameters are an argument of ``act``, not part of the program.
     def _key(self):
-        return type(self), self.model, self.mode, self.controller, self.name
+        return type(self), self.model, self.mode, self.controller, self.name, self.sensor_config
 
     def __eq__(self, other):
         return isinstance(other, ModelPolicy) and self._key() == other._key()
@@ -287,20 +324,22 @@ class ModelPolicy:
         return hash(self._key())
 
     def initial_state(self, obs) -> PolicyState:
-        return PolicyState(history=empty_history(obs), controller=ctl.init_controller_state(self.controller))
+        return PolicyState(history=empty_history(obs), controller=ctl.init_controller_state(self.controller),
+                           fused_steers=jnp.zeros((FUSE_WINDOW,), jnp.float32))
 
     def act(self, params, obs, policy_state: PolicyState, key):
         hist = push_history(policy_state.history, obs)
         out = self.model.apply(self.params if params is None else params, with_history(obs, hist))
-        cstate = policy_state.controller
+        cstate, steers = policy_state.controller, policy_state.fused_steers
         if self.mode == "traj":
             action = Waypoints(xy=out.waypoints.astype(jnp.float32))
         elif self.mode == "ctrl":
             action = _require_controls(out, self.model)
         else:
             traj, cstate = ctl.waypoints_to_controls(out.waypoints, obs.ego[0], cstate, self.controller)
-            action = fuse_controls(traj, _require_controls(out, self.model))
-        return action, PolicyState(history=hist, controller=cstate)
+            action = fuse_controls(traj, _require_controls(out, self.model), is_turning(steers))
+            steers = jnp.concatenate([steers[1:], jnp.abs(action.steer).astype(jnp.float32)[None]])
+        return action, PolicyState(history=hist, controller=cstate, fused_steers=steers)
 
 
 def _require_controls(out: ModelOutput, model) -> Controls:
@@ -314,11 +353,13 @@ def as_policy(model: Model, params_or_checkpoint, mode: Mode = "traj", **kwargs)
 
     Args:
       model: a ``Model``.
-      params_or_checkpoint: its parameters, or a checkpoint path (a run folder,
-        its ``checkpoints/`` or one ``checkpoints/<epoch>``; ``train.checkpoint``).
+      params_or_checkpoint: its parameters (None: a random init), or a
+        checkpoint path (a run folder, its ``checkpoints/`` or one
+        ``checkpoints/<epoch>``; ``train.checkpoint``).
       mode: "traj" -> Waypoints action (the simulator's PID + pure pursuit);
         "ctrl" -> the control head's Controls; "fused" -> TCP's blend of the
         two (``fuse_controls``).
+      kwargs: ``ModelPolicy``'s controller, name, sensor_config.
     """
     params = params_or_checkpoint
     if isinstance(params, (str, bytes)) or hasattr(params, "__fspath__"):
@@ -326,3 +367,81 @@ def as_policy(model: Model, params_or_checkpoint, mode: Mode = "traj", **kwargs)
 
         params = load_params(params_or_checkpoint)
     return ModelPolicy(model, params, mode, **kwargs)
+
+
+def policy_from_checkpoint(model_name: str, checkpoint=None, mode: Mode = "traj", name: str | None = None,
+                           **config) -> ModelPolicy:
+    """The policy files' one loader: ``model_name`` driven in ``mode``.
+
+    Args:
+      model_name: registry name (``models.MODELS``).
+      checkpoint: a run folder, its ``checkpoints/`` or one
+        ``checkpoints/<epoch>``; None: a fresh random init (smoke tests).
+        Its stored ``model`` must be ``model_name`` and its ``model_config``
+        overrides ``config``; the BEV its training data was rendered at
+        (``train.dataset.training_bev``) becomes the policy's
+        ``sensor_config``, so evaluation renders the same BEV.
+      mode, name: as ``ModelPolicy``.  config: ``make_model`` arguments.
+    Raises DriveE2EError (one line) on a checkpoint of another model or
+    training data whose BEV the model cannot read.
+    """
+    from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.models import get_model
+
+    params, bev = None, None
+    if checkpoint is not None:
+        from drivee2e_jax.train import checkpoint as ckpt
+        from drivee2e_jax.train.dataset import training_bev
+
+        path = ckpt.resolve(checkpoint)
+        meta = ckpt.read_meta(path)
+        if meta.get("model", model_name) != model_name:
+            raise DriveE2EError(f"{checkpoint}: a {meta['model']!r} checkpoint, expected a {model_name!r} one")
+        config = {**config, **meta.get("model_config", {})}
+        params = ckpt.restore(path)["params"]
+        bev = training_bev(meta)
+    model = get_model(model_name, **config)
+    sensor_config = None
+    if bev is not None:
+        from drivee2e_jax.observe.sensors import SensorConfig
+
+        check_bev(bev, model, f"{checkpoint} (its training data)")
+        sensor_config = SensorConfig(bev=bev)
+    return ModelPolicy(model, params, mode, name=name, sensor_config=sensor_config)
+
+
+# --------------------------------------------------------------------------
+# BEV sizes
+# --------------------------------------------------------------------------
+
+
+def bev_label(bev) -> str:
+    """"HxW at R m/px" of an ``observe.bev.BevConfig``."""
+    return f"{bev.height}x{bev.width} at {bev.resolution:g} m/px"
+
+
+def bev_fits(rendered, wanted) -> bool:
+    """Whether a model sized for the BEV ``wanted`` reads ``rendered``: the
+    same BEV, or an integer multiple of its pixels covering the same ground
+    (same extent, ego offset and channels), which it max-pools."""
+    fh, fw = rendered.height // wanted.height, rendered.width // wanted.width
+    return (fh >= 1 and fw >= 1 and rendered.height == fh * wanted.height and rendered.width == fw * wanted.width
+            and abs(rendered.resolution * fh - wanted.resolution) <= 1e-6 * wanted.resolution
+            and abs(rendered.resolution * fw - wanted.resolution) <= 1e-6 * wanted.resolution
+            and rendered.ego_from_bottom == wanted.ego_from_bottom
+            and tuple(rendered.channels) == tuple(wanted.channels))
+
+
+def check_bev(rendered, model, source: str) -> None:
+    """One-line DriveE2EError unless ``model`` (sized for ``model.bev``) can
+    read the BEV ``rendered`` (``bev_fits``); models without a ``bev``
+    attribute and ``rendered=None`` pass. ``source`` names where it came from."""
+    wanted = getattr(model, "bev", None)
+    if rendered is None or wanted is None or bev_fits(rendered, wanted):
+        return
+    from drivee2e_jax.errors import DriveE2EError
+
+    raise DriveE2EError(
+        f"{source}: BEV {bev_label(rendered)} does not fit model {model.name!r}, sized for {bev_label(wanted)} "
+        f"(render that, or an integer multiple of it covering the same "
+        f"{wanted.height * wanted.resolution:g} x {wanted.width * wanted.resolution:g} m)")

@@ -8,11 +8,18 @@ policy gets at that step (the ego history kept by the same
 (``models.base.targets_from_log``). Samples count while the episode runs and
 the next logged waypoint exists.
 
+The BEV is rendered at ``DatasetConfig.bev_size`` / ``bev_resolution``
+(default 128 x 128 at 0.5 m/px; TCP is sized for 64 x 64 at 1 m/px, so
+``bev_size=64`` renders its input directly instead of pooling): the manifest
+records it, ``DemoDataset.check_model`` refuses a model that cannot read it,
+and ``training_bev`` hands it to the policy of a checkpoint trained on it, so
+evaluation renders the same BEV.
+
 On disk (``OUT/``): ``shard-00000.npz`` ... one per chunk of scenarios, the
 flattened leaves (``"obs.ego"``, ``"target.waypoints"``, ...) stacked over
 samples, each written atomically; ``manifest.json`` (written last) with the
-suite, version, split, sensors, sampling, per-shard counts and every leaf's
-per-sample shape and dtype. ``DemoDataset(OUT).batches(...)`` streams
+suite, version, split, sensors, the BEV size, sampling, per-shard counts and
+every leaf's per-sample shape and dtype. ``DemoDataset(OUT).batches(...)`` streams
 shuffled fixed-size batches holding only a few shards in memory.
 """
 
@@ -35,10 +42,13 @@ from flax import struct
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.io.results import atomic_write, atomic_write_json
 from drivee2e_jax.models import base
+from drivee2e_jax.observe.bev import BevConfig
 from drivee2e_jax.scenario.pack import flatten_dataclass, unflatten_dataclass
 
 FORMAT = 1
 MANIFEST = "manifest.json"
+#: The BEV rendered unless ``DatasetConfig`` sizes it (= the simulator's default).
+DEFAULT_BEV = BevConfig()
 
 
 @struct.dataclass
@@ -64,6 +74,8 @@ class DatasetConfig:
       num_waypoints, waypoint_dt: the target's future points.
       scenarios_per_shard: scenarios rolled out together and written as one shard.
       sim_dt: simulation step, s.
+      bev_size: px, side of the square BEV (when "bev" is in ``sensors``).
+      bev_resolution: m/px; None = the default BEV's 64 m extent / ``bev_size``.
     """
 
     sensors: tuple[str, ...] = ()
@@ -72,10 +84,66 @@ class DatasetConfig:
     waypoint_dt: float = 0.5
     scenarios_per_shard: int = 25
     sim_dt: float = 0.1
+    bev_size: int = DEFAULT_BEV.height
+    bev_resolution: float | None = None
 
     def __post_init__(self):
         if self.every < 1 or self.scenarios_per_shard < 1 or self.num_waypoints < 1:
             raise DriveE2EError("dataset: every, scenarios_per_shard and num_waypoints must be >= 1")
+        if self.bev_size < 1 or (self.bev_resolution is not None and self.bev_resolution <= 0):
+            raise DriveE2EError(f"dataset: --bev-size must be >= 1 and --bev-resolution > 0, got "
+                                f"{self.bev_size} and {self.bev_resolution}")
+        if self.bev_resolution is None:
+            object.__setattr__(self, "bev_resolution", DEFAULT_BEV.height * DEFAULT_BEV.resolution / self.bev_size)
+        try:
+            _ = self.sensor_config  # validates the BEV (tiles must divide it)
+        except ValueError as e:
+            raise DriveE2EError(f"dataset --sensors / --bev-size {self.bev_size} / --bev-resolution "
+                                f"{self.bev_resolution:g}: {e}") from e
+
+    @property
+    def bev(self) -> BevConfig:
+        """The BEV rendered when "bev" is in ``sensors``."""
+        return dataclasses.replace(DEFAULT_BEV, height=self.bev_size, width=self.bev_size,
+                                   resolution=float(self.bev_resolution))
+
+    @property
+    def sensor_config(self):
+        """``observe.sensors.SensorConfig`` of the recording (ValueError on a bad one)."""
+        from drivee2e_jax.observe.sensors import SensorConfig
+
+        return SensorConfig.for_policy(tuple(self.sensors), SensorConfig(bev=self.bev))
+
+
+def bev_of_manifest(manifest: dict) -> BevConfig | None:
+    """The BEV a dataset was rendered at (None: no BEV); manifests from before
+    the size was recorded used the default 128 x 128 at 0.5 m/px."""
+    if "bev" not in manifest.get("sensors", ()):
+        return None
+    b = manifest.get("bev") or {}
+    return dataclasses.replace(DEFAULT_BEV, height=int(b.get("height", DEFAULT_BEV.height)),
+                               width=int(b.get("width", DEFAULT_BEV.width)),
+                               resolution=float(b.get("resolution", DEFAULT_BEV.resolution)))
+
+
+def training_bev(meta: dict) -> BevConfig | None:
+    """The BEV the training data of a checkpoint (its ``meta.json``) was
+    rendered at: ``meta["data_bev"]`` (the manifest's ``"bev"``) when the
+    training loop stored one, else the manifest of ``meta["config"]["data"]``
+    when that folder still holds the data trained on (same digest); None when
+    unknown or without a BEV."""
+    if meta.get("data_bev"):
+        return bev_of_manifest({"sensors": ["bev"], "bev": meta["data_bev"]})
+    data = (meta.get("config") or {}).get("data")
+    if not data:
+        return None
+    try:
+        ds = DemoDataset(data)
+    except DriveE2EError:
+        return None
+    if meta.get("data_digest") not in (None, ds.digest):
+        return None
+    return ds.bev
 
 
 # --------------------------------------------------------------------------
@@ -186,10 +254,7 @@ def build_dataset(suite, split: str, out: str | Path, cfg: DatasetConfig = Datas
     if n == 0:
         raise DriveE2EError(f"dataset: split {split!r} of suite {suite.name!r} has no scenarios")
     packed = packed.select(np.arange(n))
-    try:
-        sim_cfg = SimConfig(dt=cfg.sim_dt, sensors=sens.SensorConfig.for_policy(tuple(cfg.sensors)))
-    except ValueError as e:
-        raise DriveE2EError(f"dataset --sensors: {e}") from e
+    sim_cfg = SimConfig(dt=cfg.sim_dt, sensors=cfg.sensor_config)
     sim = Simulator(sim_cfg)
     assets = sens.build_assets(packed, sim_cfg.sensors, suite.maps)
     batch, _ = device_batch(packed)
@@ -226,6 +291,8 @@ def build_dataset(suite, split: str, out: str | Path, cfg: DatasetConfig = Datas
         "split": split,
         "num_scenarios": n,
         "sensors": list(cfg.sensors),
+        "bev": None if sim_cfg.sensors.bev is None else {
+            "height": cfg.bev_size, "width": cfg.bev_size, "resolution": cfg.bev_resolution},
         "config": dataclasses.asdict(cfg),
         "history_len": base.HISTORY_LEN,
         "history_dt": base.HISTORY_DT,
@@ -265,6 +332,22 @@ class DemoDataset:
 
     def __len__(self) -> int:
         return int(self.manifest["count"])
+
+    @property
+    def bev(self) -> BevConfig | None:
+        """The BEV the samples were rendered at (None: no BEV)."""
+        return bev_of_manifest(self.manifest)
+
+    def check_model(self, model, name: str | None = None) -> None:
+        """One-line DriveE2EError unless ``model`` can train on this data: it
+        has every sensor the model requires, at a BEV size the model reads
+        (``models.base.check_bev``)."""
+        name = name or getattr(model, "name", "?")
+        missing = set(getattr(model, "required_sensors", ())) - set(self.manifest["sensors"])
+        if missing:
+            raise DriveE2EError(f"{self.path}: model {name!r} needs sensors {sorted(missing)} the dataset lacks "
+                                f"(rebuild with `drivee2e dataset build --sensors {','.join(sorted(missing))}`)")
+        base.check_bev(self.bev, model, f"{self.path}")
 
     @property
     def digest(self) -> str:

@@ -158,10 +158,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
     out = Path(out)
     ds = DemoDataset(cfg.data)
     model = get_model(cfg.model, **dict(cfg.model_config))
-    missing = set(getattr(model, "required_sensors", ())) - set(ds.manifest["sensors"])
-    if missing:
-        raise DriveE2EError(f"{cfg.data}: model {cfg.model!r} needs sensors {sorted(missing)} the dataset lacks "
-                            f"(rebuild with `drivee2e dataset build --sensors {','.join(sorted(missing))}`)")
+    ds.check_model(model, cfg.model)
     steps_per_epoch = ds.steps_per_epoch(cfg.batch_size)
     if steps_per_epoch < 1:
         raise DriveE2EError(f"{cfg.data}: {len(ds)} samples, fewer than one batch of {cfg.batch_size}")
@@ -209,7 +206,8 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
                     log.flush()
             bar.close()
             meta = {"step": step, "model": cfg.model, "model_config": dict(cfg.model_config),
-                    "config": cfg_json, "data_digest": ds.digest, "train_loss": float(np.mean(losses))}
+                    "config": cfg_json, "data_digest": ds.digest, "data_bev": ds.manifest.get("bev"),
+                    "train_loss": float(np.mean(losses))}
             ckpt.save(out, epoch, {"params": params, "opt_state": opt_state, "step": np.int64(step)}, meta)
             log.write(json.dumps({"event": "epoch", "step": step, "epoch": epoch, "loss": float(np.mean(losses)),
                                   "time": round(time.perf_counter() - t0, 3)}) + "\n")

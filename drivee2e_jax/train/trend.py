@@ -69,6 +69,8 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
       mode: ``models.base.as_policy`` mode ("traj" for the open-loop metrics).
     """
     from drivee2e_jax.models.base import as_policy
+    from drivee2e_jax.observe.sensors import SensorConfig
+    from drivee2e_jax.train.dataset import training_bev
     from drivee2e_jax.scenario import load_suite
     from drivee2e_jax.train import checkpoint as ckpt
     from drivee2e_jax.train.loop import model_of_run
@@ -81,7 +83,8 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
     suite = load_suite(suite or _run_suite(run_dir))
     packed = suite.pack(split)
     maps = suite.maps if getattr(model, "required_sensors", ()) else None
-    policy = as_policy(model, None, mode)
+    bev = training_bev(ckpt.read_meta(ckpts[-1]))
+    policy = as_policy(model, None, mode, sensor_config=None if bev is None else SensorConfig(bev=bev))
     rows = []
     for c in ckpts:
         row_file = out / "checkpoints" / f"{c.name}.json"
