@@ -9,6 +9,14 @@ Control timing (Behavior Metrics' synchronous / asynchronous modes): the
 policy is queried every ``control_every`` simulation steps and its action is
 held in between; ``latency`` delays each action by that many steps (the
 previous action stays applied meanwhile; the first actions are a full brake).
+
+The observation is rendered at the START of a step, from the simulator state,
+right before the policy reads it (``Simulator.observe``), not carried from the
+previous step: under ``jit`` XLA then computes only what the policy reads
+(e.g. a LiDAR range image reduced by the policy is never written out) and
+nothing image-sized rides in the scan carry. With ``control_every`` > 1 and a
+``chunk`` that is a multiple of it, the steps without a query skip the
+rendering and the policy entirely (``lax.cond`` on the scan index).
 """
 
 from __future__ import annotations
@@ -45,7 +53,6 @@ class Carry:
     """Rollout carry for one scenario."""
 
     sim: SimState
-    obs: Any
     policy_state: Any
     held: Any  # the action currently applied
     queue: Any  # (latency, ...) actions waiting to take effect
@@ -96,30 +103,52 @@ class Rollout:
         action, _ = self.policy.act(params, obs, pstate, k_pol)
         neutral = _brake_like(action)
         queue = jax.tree_util.tree_map(lambda a: jnp.stack([a] * self.timing.latency), neutral) if self.timing.latency else None
-        return Carry(sim=sim_state, obs=obs, policy_state=pstate, held=neutral, queue=queue, key=key)
+        return Carry(sim=sim_state, policy_state=pstate, held=neutral, queue=queue, key=key)
 
-    def _step_one(self, scenario: Scenario, carry: Carry, assets, params):
+    def _decide(self, scenario: Scenario, carry: Carry, assets, params, k_act):
+        """(the policy's action, its new state) on the current observation."""
+        obs = self.sim.observe(scenario, carry.sim, assets)
+        return self.policy.act(params, obs, carry.policy_state, k_act)
+
+    def _step_one(self, scenario: Scenario, carry: Carry, assets, params, query=None):
+        """One simulation step. ``query``: () bool whether the policy runs this
+        step; None = from the step count. A static True / an unbatched value
+        (the scan index) lets XLA skip the observation on the other steps."""
         key, k_act = jax.random.split(carry.key)
-        query = (carry.sim.step % self.timing.control_every) == 0
-        proposed, pstate = self.policy.act(params, carry.obs, carry.policy_state, k_act)
-        pick = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(query, a, b), new, old)  # noqa: E731
-        pstate = pick(pstate, carry.policy_state)
+        every = self.timing.control_every
+        last = carry.held if not self.timing.latency else jax.tree_util.tree_map(lambda q: q[-1], carry.queue)
+        if every == 1:
+            proposed, pstate = self._decide(scenario, carry, assets, params, k_act)
+        elif query is None:
+            query = (carry.sim.step % every) == 0
+            proposed, pstate = self._decide(scenario, carry, assets, params, k_act)
+            pick = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(query, a, b), new, old)  # noqa: E731
+            proposed, pstate = pick(proposed, last), pick(pstate, carry.policy_state)
+        else:
+            proposed, pstate = jax.lax.cond(
+                query, lambda: self._decide(scenario, carry, assets, params, k_act),
+                lambda: (last, carry.policy_state))
         if self.timing.latency:
             # Enqueue the newly decided action; apply the oldest one.
-            fresh = pick(proposed, jax.tree_util.tree_map(lambda q: q[-1], carry.queue))
             applied = jax.tree_util.tree_map(lambda q: q[0], carry.queue)
-            queue = jax.tree_util.tree_map(lambda q, a: jnp.concatenate([q[1:], a[None]]), carry.queue, fresh)
+            queue = jax.tree_util.tree_map(lambda q, a: jnp.concatenate([q[1:], a[None]]), carry.queue, proposed)
         else:
-            applied = pick(proposed, carry.held)
+            applied = proposed
             queue = None
-        sim_state, obs, log = self.sim.step(scenario, carry.sim, applied, assets)
-        return Carry(sim=sim_state, obs=obs, policy_state=pstate, held=applied, queue=queue, key=key), log
+        sim_state, _, log = self.sim.step(scenario, carry.sim, applied, assets, observe=False)
+        return Carry(sim=sim_state, policy_state=pstate, held=applied, queue=queue, key=key), log
 
     def _advance_one(self, scenario: Scenario, carry: Carry, assets, params):
-        def body(c, _):
-            return self._step_one(scenario, c, assets, params)
+        every = self.timing.control_every
+        # Every chunk starts at a multiple of ``chunk`` steps: when that is a
+        # multiple of ``control_every`` the query steps are known from the
+        # scan index alone (equal to the step count of every running episode).
+        static = every > 1 and self.chunk % every == 0
 
-        return jax.lax.scan(body, carry, None, length=self.chunk)
+        def body(c, i):
+            return self._step_one(scenario, c, assets, params, (i % every) == 0 if static else None)
+
+        return jax.lax.scan(body, carry, jnp.arange(self.chunk), length=self.chunk)
 
     # host loop --------------------------------------------------------------
     def run(self, batch: Scenario, key, *, max_steps: int | None = None, progress: Callable[[int], None] | None = None):

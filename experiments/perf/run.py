@@ -102,14 +102,18 @@ def measure(suite: str, batch: int, chunk: int, steps: int | None) -> dict:
     }
 
 
-def mlp_sensor_policy(hidden: int = 64):
+def mlp_sensor_policy(hidden: int = 64, reads: tuple[str, ...] = ("bev", "lidar"), pool: str = "bits"):
     """A small MLP over the packed BEV (per-channel occupancy of 8 x 8 pooled
     cells) and the LiDAR range image (per-column minimum over channels),
-    random weights: the stand-in policy of ``sweep_bev_lidar``."""
+    random weights: the stand-in policy of ``sweep_bev_lidar``. ``reads``:
+    the sensors it declares and reads (a subset: for cost breakdowns).
+    ``pool``: ``bits`` pools the packed words directly (``bev.pool_bits``, the
+    documented fast path), ``float`` unpacks a (H, W, C) float image first
+    (same features, ~17x the pooling cost)."""
     import jax
     import jax.numpy as jnp
 
-    from drivee2e_jax.observe.bev import BevConfig, unpack_bits
+    from drivee2e_jax.observe.bev import BevConfig, pool_bits, unpack_bits
     from drivee2e_jax.policy import StatelessPolicy
     from drivee2e_jax.types import Controls
 
@@ -117,14 +121,20 @@ def mlp_sensor_policy(hidden: int = 64):
 
     class MLPSensors(StatelessPolicy):
         name = "mlp_sensors"
-        required_sensors = ("bev", "lidar")
+        required_sensors = tuple(reads)
 
         def features(self, obs):
-            img = unpack_bits(obs.bev, n_ch)  # (H, W, C)
-            h, w, c = img.shape
-            pooled = img.reshape(8, h // 8, 8, w // 8, c).mean(axis=(1, 3)).reshape(-1)
-            ranges = obs.lidar.min(axis=0) / 85.0
-            return jnp.concatenate([pooled, ranges, obs.ego])
+            parts = []
+            if "bev" in reads and pool == "bits":
+                h, w = obs.bev.shape
+                parts.append(pool_bits(obs.bev, n_ch, h // 8, w // 8).reshape(-1))
+            elif "bev" in reads:
+                img = unpack_bits(obs.bev, n_ch)  # (H, W, C)
+                h, w, c = img.shape
+                parts.append(img.reshape(8, h // 8, 8, w // 8, c).mean(axis=(1, 3)).reshape(-1))
+            if "lidar" in reads:
+                parts.append(obs.lidar.min(axis=0) / 85.0)
+            return jnp.concatenate([*parts, obs.ego])
 
         def init(self, key, obs):
             d = self.features(obs).shape[0]
@@ -167,6 +177,10 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     sim = Simulator(cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), b)
     params = _init_params(pol, sim, scn, keys[0], assets)
+    if jax.local_device_count() > 1:  # --host-devices: one batch shard per CPU device (thread)
+        from drivee2e_jax.rollout import shard_rollout_inputs
+
+        scn, keys, assets = shard_rollout_inputs(scn, keys, assets)
     ro = Rollout(sim, pol, params, chunk=chunk, assets=assets)
     t0 = time.perf_counter()
     ro.init.lower(scn, keys).compile()
@@ -185,7 +199,7 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     jax.block_until_ready(carry)
     wall = time.perf_counter() - t0
     return {"config": "sweep_bev_lidar", "suite": suite_name, "batch": b, "steps": n_chunks * chunk,
-            "bev": "128x128", "lidar": "64x360", "wall_s": wall, "compile_s": compile_s, "raster_s": raster_s,
+            "bev": "128x128", "lidar": "64x360", "devices": jax.local_device_count(), "wall_s": wall, "compile_s": compile_s, "raster_s": raster_s,
             "scenario_steps_per_s": b * n_chunks * chunk / wall, "raster_mb": assets.raster.nbytes / 2**20}
 
 
@@ -220,8 +234,14 @@ def main(argv=None) -> int:
                     help="comma-separated configurations (default state_only,sweep_bev_lidar)")
     ap.add_argument("--sweep-batch", type=int, default=None,
                     help="sweep_bev_lidar: only the first N scenarios (default: the whole suite)")
+    ap.add_argument("--host-devices", type=int, default=None,
+                    help="sweep_bev_lidar: split the batch over N XLA CPU devices, one thread each "
+                         "(XLA_FLAGS=--xla_force_host_platform_device_count=N; default: one device)")
     ap.add_argument("--_probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.host_devices:
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
+                                   + f" --xla_force_host_platform_device_count={args.host_devices}").strip()
     batches = [int(b) for b in args.batches.split(",")]
 
     if args._probe:

@@ -23,7 +23,7 @@ from shapely.geometry import Polygon
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.observe import bev as bevmod
-from drivee2e_jax.observe.bev import BevConfig, pixel_centres, render_bev
+from drivee2e_jax.observe.bev import BevConfig, pixel_centres, render_bev, unpack_bits
 from drivee2e_jax.observe.raster import (Layer, layer_geometries, rasterize_map, rasterize_maps,
                                          stack_rasters, stop_line_geometries)
 from drivee2e_jax.scenario.records import LaneRecord, MapRecord
@@ -458,3 +458,68 @@ def test_config_validation():
     with pytest.raises(ValueError, match="tile"):
         BevConfig(height=100, tile=8)
     assert set(bevmod.DEFAULT_CHANNELS) <= set(bevmod.ALL_CHANNELS)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), num=st.integers(1, 31),
+       cells=st.sampled_from([(1, 1), (2, 4), (4, 2), (8, 8), (16, 16)]))
+def test_pool_bits_equals_unpacked_mean(seed, num, cells):
+    from drivee2e_jax.observe.bev import pool_bits
+
+    rng = np.random.default_rng(seed)
+    # Dense and sparse words, every bit up to 31 set somewhere.
+    words = rng.integers(0, 2**31, (16, 32), dtype=np.int64).astype(np.int32)
+    words[rng.random((16, 32)) < 0.3] = 2**31 - 1
+    ch, cw = cells
+    got = np.asarray(pool_bits(jnp.asarray(words), num, ch, cw))
+    img = np.asarray(unpack_bits(jnp.asarray(words), num))
+    want = img.reshape(16 // ch, ch, 32 // cw, cw, num).mean(axis=(1, 3))
+    np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_pool_bits_counts_a_full_cell():
+    from drivee2e_jax.observe.bev import pool_bits
+
+    words = jnp.full((256, 255), 2**31 - 1, jnp.int32)  # 65280 pixels, every bit: no field overflows
+    np.testing.assert_array_equal(np.asarray(pool_bits(words, 31, 256, 255)), 1.0)
+    with pytest.raises(ValueError, match="pool_bits"):
+        pool_bits(words, 31, 7, 255)  # 7 rows do not tile 256
+    with pytest.raises(ValueError, match="pool_bits"):
+        pool_bits(words, 33, 256, 255)
+
+
+def test_route_window_slices_around_the_route_index_and_clamps():
+    from drivee2e_jax.observe.bev import route_window
+
+    cfg = BevConfig(route_points=10, route_behind=3)
+    xy = jnp.stack([jnp.arange(30.0), jnp.zeros(30)], -1)
+    valid = jnp.arange(30) < 25
+    # Starts on a multiple of route_stride (2).
+    for index, first in [(0, 0), (2, 0), (3, 0), (12, 8), (13, 10), (25, 20), (29, 20)]:
+        w_xy, w_valid = route_window(xy, valid, jnp.int32(index), cfg)
+        np.testing.assert_array_equal(np.asarray(w_xy[:, 0]), np.arange(first, first + 10))
+        np.testing.assert_array_equal(np.asarray(w_valid), np.arange(first, first + 10) < 25)
+    whole = route_window(xy, valid, jnp.int32(7), BevConfig(route_points=0, route_behind=0))
+    assert whole[0].shape == (30, 2)
+    with pytest.raises(ValueError, match="route_points"):
+        BevConfig(route_points=8, route_behind=8)
+
+
+@settings(max_examples=10, deadline=None)
+@given(index=st.integers(40, 150), yaw=st.floats(-3.1, 3.1))
+def test_windowed_route_draws_the_same_image_as_the_whole_route(index, yaw):
+    """A straight 1 m route: the default window (32 m behind, 64 m ahead of the
+    ego's route point) covers everything of the route inside the 64 m view."""
+    from drivee2e_jax.observe.bev import route_window
+
+    cfg = BevConfig(height=64, width=64, resolution=1.0, channels=("route",))
+    d = np.array([np.cos(yaw), np.sin(yaw)])
+    route = (np.arange(200)[:, None] * d).astype(np.float32)
+    valid = np.ones(200, bool)
+    ego = route[index] + 0.3 * np.array([-d[1], d[0]])
+    kw = {"ego_xy": ego, "ego_yaw": np.float32(yaw)}
+    whole = _render(EMPTY, cfg, route_xy=route, route_valid=valid, **kw)
+    w_xy, w_valid = route_window(jnp.asarray(route), jnp.asarray(valid), jnp.int32(index), cfg)
+    win = _render(EMPTY, cfg, route_xy=np.asarray(w_xy), route_valid=np.asarray(w_valid), **kw)
+    assert whole.sum() > 20
+    np.testing.assert_array_equal(win, whole)
