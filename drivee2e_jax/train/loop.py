@@ -116,7 +116,7 @@ def data_sharding(batch_size: int):
     return NamedSharding(mesh, PartitionSpec("data")), NamedSharding(mesh, PartitionSpec())
 
 
-def _check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None:
+def check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None:
     cfg_file = out / "config.json"
     if not cfg_file.is_file():
         return
@@ -138,7 +138,7 @@ def _check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None
         raise DriveE2EError(f"{out}: --resume with a changed config ({', '.join(f'{k}: {old.get(k)!r} -> {cfg_json.get(k)!r}' for k in diff)})")
 
 
-def _trim_log(log: Path, step: int) -> None:
+def trim_log(log: Path, step: int) -> None:
     """Drop log lines past ``step`` (written after the checkpoint we resume from)."""
     if not log.is_file():
         return
@@ -163,7 +163,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
     if steps_per_epoch < 1:
         raise DriveE2EError(f"{cfg.data}: {len(ds)} samples, fewer than one batch of {cfg.batch_size}")
     cfg_json = json.loads(json.dumps({**cfg.to_json(), "data_digest": ds.digest}))
-    _check_run_dir(out, cfg_json, resume, force)
+    check_run_dir(out, cfg_json, resume, force)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "config.json", cfg_json)
 
@@ -177,7 +177,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
         state = ckpt.restore(done[-1], {"params": params, "opt_state": opt_state, "step": np.int64(0)})
         params, opt_state, step = state["params"], state["opt_state"], int(state["step"])
         start_epoch = int(ckpt.read_meta(done[-1])["epoch"])
-        _trim_log(out / "log.jsonl", step)
+        trim_log(out / "log.jsonl", step)
         print_fn(f"resuming {out} from epoch {start_epoch} (step {step})")
     batch_sh, repl_sh = data_sharding(cfg.batch_size)
     if repl_sh is not None:
