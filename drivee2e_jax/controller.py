@@ -134,6 +134,19 @@ def lookahead_point(waypoints_xy: Array, distance: Array) -> Array:
     return jnp.where(last >= 0, pts[i] + t * seg[i], jnp.zeros(2))
 
 
+def pursuit_steer(waypoints_xy: Array, speed: Array, params: ControllerParams) -> Array:
+    """() steer command of pure pursuit, NOT clipped to [-1, 1] (smooth in
+    the waypoints): from the rear axle (lr behind the box centre) the arc
+    through the aim point ``lookahead`` m along the plan has curvature
+    2 y / d^2, and tan(delta) = L k; returned as delta / max_steer."""
+    veh = params.vehicle
+    lookahead = jnp.clip(params.lookahead_time * speed, params.lookahead_min, params.lookahead_max)
+    aim = lookahead_point(waypoints_xy, lookahead)
+    x_rear, y = aim[0] + veh.lr, aim[1]
+    curvature = 2.0 * y / (x_rear**2 + y**2)
+    return jnp.arctan(veh.wheelbase * curvature) / veh.max_steer
+
+
 def waypoints_to_controls(
     waypoints_xy: Array, speed: Array, state: ControllerState, params: ControllerParams
 ) -> tuple[Controls, ControllerState]:
@@ -156,13 +169,7 @@ def waypoints_to_controls(
     brake = (target < params.brake_speed) | (speed > params.brake_ratio * target)
     throttle = jnp.where(brake, 0.0, jnp.clip(hold + pid, 0.0, params.max_throttle))
 
-    # Lateral: pure pursuit from the rear axle (lr behind the box centre),
-    # curvature 2 y / d^2 of the arc through the aim point, tan(delta) = L k.
-    lookahead = jnp.clip(params.lookahead_time * speed, params.lookahead_min, params.lookahead_max)
-    aim = lookahead_point(waypoints_xy, lookahead)
-    x_rear, y = aim[0] + veh.lr, aim[1]
-    curvature = 2.0 * y / (x_rear**2 + y**2)
-    steer = jnp.clip(jnp.arctan(veh.wheelbase * curvature) / veh.max_steer, -1.0, 1.0)
+    steer = jnp.clip(pursuit_steer(waypoints_xy, speed, params), -1.0, 1.0)
 
     controls = Controls(
         throttle=throttle.astype(jnp.float32),

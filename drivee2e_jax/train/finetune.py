@@ -180,11 +180,7 @@ def smooth_controls(waypoints_xy, speed, params: ctl.ControllerParams) -> Contro
     u = (target - speed) / SURROGATE_WIDTH
     throttle = SURROGATE_GAIN * SURROGATE_WIDTH / veh.max_accel * jax.nn.softplus(u)
     brake = SURROGATE_GAIN * SURROGATE_WIDTH / veh.max_decel * jax.nn.softplus(-u)
-    lookahead = jnp.clip(params.lookahead_time * speed, params.lookahead_min, params.lookahead_max)
-    aim = ctl.lookahead_point(waypoints_xy, lookahead)
-    x_rear, y = aim[0] + veh.lr, aim[1]
-    steer = jnp.arctan(veh.wheelbase * 2.0 * y / (x_rear**2 + y**2 + 1e-6)) / veh.max_steer
-    return Controls(throttle=throttle, brake=brake, steer=steer)
+    return Controls(throttle=throttle, brake=brake, steer=ctl.pursuit_steer(waypoints_xy, speed, params))
 
 
 def straight_through(exact, smooth):
