@@ -109,7 +109,7 @@ def evaluate(
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(seed)
     if params is None:
-        params = _init_params(policy, sim, batch, key, assets)
+        params = init_params(policy, sim, batch, key, assets)
     b = int(batch.ego_index.shape[0])
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
 
@@ -183,8 +183,11 @@ def with_policy_sensors(config: SimConfig, policy) -> SimConfig:
     return dataclasses.replace(config, sensors=sensors.SensorConfig.for_policy(tuple(want), chosen))
 
 
-def _init_params(policy, sim: Simulator, batch, key, assets=None):
-    """``policy.init`` on the first scenario's initial observation."""
+def init_params(policy, sim: Simulator, batch, key, assets=None):
+    """``policy.init(key, obs)`` on the first scenario's initial observation:
+    the policy's parameters for a rollout of ``batch`` (a device ``Scenario``
+    batch, (B, ...)) under ``sim``; ``assets``: the batch's ``SensorAssets``
+    when a sensor is on."""
     first = jax.tree_util.tree_map(lambda a: a[0], batch)
     first_assets = None if assets is None else assets.replace(map_index=assets.map_index[0])
     _, obs = jax.jit(sim.reset)(key, first, first_assets)

@@ -385,7 +385,7 @@ def _simulate(run: RunRecord, suite, packed, rows: np.ndarray) -> dict:
     """
     import jax
 
-    from drivee2e_jax.evaluation import _init_params, device_batch, with_policy_sensors
+    from drivee2e_jax.evaluation import device_batch, init_params, with_policy_sensors
     from drivee2e_jax.metrics import episode as ep
     from drivee2e_jax.observe import sensors as sensors_mod
     from drivee2e_jax.observe.vector import ObsConfig
@@ -407,7 +407,7 @@ def _simulate(run: RunRecord, suite, packed, rows: np.ndarray) -> dict:
     batch, _ = device_batch(packed)
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(int(info.get("seed", 0)))
-    params = _init_params(pol, sim, batch, key, assets)
+    params = init_params(pol, sim, batch, key, assets)
     # A controls policy's actions are in the StepLog; a waypoint policy's
     # plan needs the scan to emit the applied action as well.
     waypoints = pol.action_type == "waypoints"

@@ -157,7 +157,7 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     import jax.numpy as jnp
     import numpy as np
 
-    from drivee2e_jax.evaluation import _init_params, with_policy_sensors
+    from drivee2e_jax.evaluation import init_params, with_policy_sensors
     from drivee2e_jax.observe import sensors
     from drivee2e_jax.rollout import Rollout
     from drivee2e_jax.scenario import load_suite
@@ -176,7 +176,7 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     b = len(packed)
     sim = Simulator(cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), b)
-    params = _init_params(pol, sim, scn, keys[0], assets)
+    params = init_params(pol, sim, scn, keys[0], assets)
     if jax.local_device_count() > 1:  # --host-devices: one batch shard per CPU device (thread)
         from drivee2e_jax.rollout import shard_rollout_inputs
 

@@ -44,7 +44,7 @@ def child(args) -> None:
     import jax
     import numpy as np
 
-    from drivee2e_jax.evaluation import _init_params, device_batch
+    from drivee2e_jax.evaluation import device_batch, init_params
     from drivee2e_jax.policy import load_policy
     from drivee2e_jax.rollout import Rollout, shard_rollout_inputs
     from drivee2e_jax.scenario import load_suite
@@ -57,7 +57,7 @@ def child(args) -> None:
     sim = Simulator(SimConfig())
     pol = load_policy(ROOT / "policies" / "expert.py")
     key = jax.random.PRNGKey(0)
-    params = _init_params(pol, sim, batch, key)
+    params = init_params(pol, sim, batch, key)
     run_batch, keys, _ = shard_rollout_inputs(batch, jax.random.split(key, len(shard)), None)
     ro = Rollout(sim, pol, params, chunk=args.chunk)
     t0 = time.perf_counter()

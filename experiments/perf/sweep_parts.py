@@ -44,7 +44,7 @@ def _setup(batch: int, reads, sensor_overrides: dict):
     import numpy as np
     from run import mlp_sensor_policy
 
-    from drivee2e_jax.evaluation import _init_params, with_policy_sensors
+    from drivee2e_jax.evaluation import init_params, with_policy_sensors
     from drivee2e_jax.observe import sensors
     from drivee2e_jax.scenario import load_suite
     from drivee2e_jax.sim import SimConfig, Simulator
@@ -60,7 +60,7 @@ def _setup(batch: int, reads, sensor_overrides: dict):
     scn = jax.tree_util.tree_map(jnp.asarray, packed.scenario)
     sim = Simulator(cfg)
     keys = jax.random.split(jax.random.PRNGKey(0), len(packed))
-    params = _init_params(pol, sim, scn, keys[0], assets)
+    params = init_params(pol, sim, scn, keys[0], assets)
     return sim, pol, params, scn, keys, assets
 
 
