@@ -482,11 +482,18 @@ def ray_box_distance(origin: Array, direction: Array, xy: Array, yaw: Array, lw:
     p = origin - xy
     ox, oy = c * p[0] + s * p[1], -s * p[0] + c * p[1]
     dx, dy = c * direction[0] + s * direction[1], -s * direction[0] + c * direction[1]
+    return slab_entry(ox, oy, dx, dy, 0.5 * lw[0], 0.5 * lw[1])
+
+
+def slab_entry(ox: Array, oy: Array, dx: Array, dy: Array, hl: Array, hw: Array) -> Array:
+    """Entry distance t > 0 (m; +inf on a miss or from inside) of the ray
+    ``(ox, oy) + t (dx, dy)`` into the axis-aligned box ``|x| <= hl, |y| <= hw``,
+    all in the box frame (any broadcastable shapes). ``ray_box_distance`` and
+    the LiDAR's per-box hoisted version (observe/raycast.py) both end here."""
     # A ray parallel to a slab: a tiny signed denominator turns the slab into
     # (-huge, +huge) when the origin lies between its planes, a miss otherwise.
     dx = jnp.where(jnp.abs(dx) < 1e-12, jnp.where(dx < 0, -1e-12, 1e-12), dx)
     dy = jnp.where(jnp.abs(dy) < 1e-12, jnp.where(dy < 0, -1e-12, 1e-12), dy)
-    hl, hw = 0.5 * lw[0], 0.5 * lw[1]
     tx1, tx2 = (-hl - ox) / dx, (hl - ox) / dx
     ty1, ty2 = (-hw - oy) / dy, (hw - oy) / dy
     t_near = jnp.maximum(jnp.minimum(tx1, tx2), jnp.minimum(ty1, ty2))

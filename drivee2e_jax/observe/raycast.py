@@ -12,10 +12,13 @@ Three stages, each a pure function of ONE scenario at one instant:
    tested only on the rays of a small angular window starting at its first
    ray (``BufferConfig.window_deg``); the few objects whose angular extent is
    widest (boxes / walls very close to the sensor) are tested on every ray,
-   so near objects are never clipped. Candidates are merged per ray by
-   ``D`` rounds of scatter-min on integer keys (range bits with the object id
-   in the low bits), and the winners' ranges are then recomputed exactly, so
-   ranges are differentiable in the agents' poses away from box corners.
+   so near objects are never clipped. The tier windows are cut into disjoint
+   ray segments, so each (object, ray) pair is tested once, with the
+   per-object terms (a box's cos / sin, the sensor in its frame) computed
+   once. Candidates are merged per ray by ``D`` rounds of scatter-min on
+   integer keys (range bits with the object id in the low bits), and the
+   winners' exact ranges are gathered from their candidates, so ranges are
+   differentiable in the agents' poses away from box corners.
 3. ``solve_elevation``: a beam at elevation ``phi`` from mount height ``z0`` is
    at height ``z0 + r tan(phi)`` at horizontal range ``r``; it hits the first
    buffered face whose height span [0, top] contains that height and passes
@@ -259,20 +262,24 @@ def _first_ray(lo: Array, span: Array, azimuths: Array, full_circle: bool) -> tu
     return start, count
 
 
-def _tier_rays(start: Array, count: Array, tiers, spacing: float, z: int, full_circle: bool):
-    """(object rows (M,), ray indices (M, W)) per tier: the ``n`` objects of
-    largest ``count`` (all for n = 0) over a window of ``deg``. Indices past
-    the fan (no wrap) are ``z`` (dropped by the scatter)."""
-    n = start.shape[0]
-    order = jax.lax.top_k(count, n)[1] if n > 0 else jnp.zeros((0,), jnp.int32)
+def _segments(tiers, spacing: float, z: int, full_circle: bool, n: int) -> list[tuple[int, int, int]]:
+    """Static disjoint window segments ``(rows, off_lo, off_hi)``: the ``rows``
+    objects of largest ray count (``n`` = all, in their own order) are tested
+    on ray offsets [off_lo, off_hi) from their first ray. Their union per
+    object is the widest tier window its rank reaches, so every (object, ray)
+    pair of the tiers is tested exactly once (no duplicate candidates)."""
     cap = z // 2 + 2 if full_circle else z
-    out = []
+    width = {}
     for num, deg in tiers:
-        rows = jnp.arange(n) if num == 0 else order[: min(num, n)]
-        width = int(min(cap, math.ceil(math.radians(deg) / spacing) + 1))
-        ray = start[rows][:, None] + jnp.arange(width)
-        ray = jnp.mod(ray, z) if full_circle else jnp.where(ray < z, ray, z)
-        out.append((rows, ray))
+        w = int(min(cap, math.ceil(math.radians(deg) / spacing) + 1))
+        rows = n if num == 0 else min(num, n)
+        width[w] = max(width.get(w, 0), rows)
+    out, lo = [], 0
+    for w in sorted(width):
+        rows = max(r for ww, r in width.items() if ww >= w)  # ranks whose window reaches w
+        if rows > 0 and w > lo:
+            out.append((rows, lo, w))
+        lo = w
     return out
 
 
@@ -282,6 +289,45 @@ def _pack(dist: Array, ident, id_bits: int, max_range: float) -> Array:
     bits = jax.lax.bitcast_convert_type(jnp.where(ok, dist, 0.0).astype(jnp.float32), jnp.int32)
     key = ((bits >> id_bits) << id_bits) | ident
     return jnp.where(ok, key, _MISS)
+
+
+def _box_frames(scene: RayScene, origin: Array) -> tuple[Array, ...]:
+    """Per agent box, computed once: (c, s) of its yaw, the sensor origin in the
+    box frame (ox, oy) and the half length / width, each (K,). What
+    ``geometry.ray_box_distance`` derives per call (one cos / sin per ray)."""
+    c, s = jnp.cos(scene.agent_yaw), jnp.sin(scene.agent_yaw)
+    p = origin - scene.agent_xy
+    ox, oy = c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]
+    return tuple(materialize(x) for x in (c, s, ox, oy, 0.5 * scene.agent_lw[:, 0], 0.5 * scene.agent_lw[:, 1]))
+
+
+def _ray_box(frame: tuple[Array, ...], direction: Array) -> Array:
+    """``geometry.ray_box_distance`` (same operations, same result) from a box
+    frame of ``_box_frames`` (scalars) and a unit ``direction (2,)``."""
+    c, s, ox, oy, hl, hw = frame
+    dx, dy = c * direction[0] + s * direction[1], -s * direction[0] + c * direction[1]
+    return geometry.slab_entry(ox, oy, dx, dy, hl, hw)
+
+
+def _edge_frames(scene: RayScene, origin: Array) -> tuple[Array, ...]:
+    """Per obstacle edge, computed once: e = b - a, w = a - origin (each (E, 2))
+    and cross(w, e) (E,), the per-edge terms of ``geometry.ray_segment_distance``."""
+    e = scene.edge_b - scene.edge_a
+    w = scene.edge_a - origin
+    return tuple(materialize(x) for x in (e, w, geometry._cross(w, e)))
+
+
+def _ray_segment(frame: tuple[Array, ...], direction: Array) -> Array:
+    """``geometry.ray_segment_distance`` (same operations, same result) from an
+    edge frame of ``_edge_frames`` and a unit ``direction (2,)``."""
+    e, w, w_x_e = frame
+    den = geometry._cross(direction, e)
+    ok = jnp.abs(den) > geometry._TINY
+    den = jnp.where(ok, den, 1.0)
+    t = w_x_e / den
+    s = geometry._cross(w, direction) / den
+    hit = ok & (t > 0.0) & (s >= 0.0) & (s <= 1.0)
+    return jnp.where(hit, t, jnp.inf)
 
 
 def polar_buffer(
@@ -315,47 +361,97 @@ def polar_buffer(
     id_bits = max(1, (k + e - 1).bit_length())
     world_az = heading + azimuths
     dirs = jnp.stack([jnp.cos(world_az), jnp.sin(world_az)], axis=-1)  # (Z, 2)
-    box = jax.vmap(geometry.ray_box_distance, (None, 0, None, None, None))
-    seg = jax.vmap(geometry.ray_segment_distance, (None, 0, None, None))
 
-    def agent_keys(i, rays_dir):
-        d = box(origin, rays_dir, scene.agent_xy[i], scene.agent_yaw[i], scene.agent_lw[i])
-        d = jnp.where(scene.agent_valid[i], d, jnp.inf)
-        return _pack(d, i, id_bits, max_range)
-
-    def edge_keys(i, rays_dir):
-        a, b = scene.edge_a[i], scene.edge_b[i]
-        facing = geometry._cross(b - a, origin - a) * scene.edge_orient[i] < 0
-        d = seg(origin, rays_dir, a, b)
-        d = jnp.where(scene.edge_valid[i] & facing, d, jnp.inf)
-        return _pack(d, k + i, id_bits, max_range)
-
-    cand_ray, cand_key = [], []
     groups = []
     if k > 0:
+        frame = _box_frames(scene, origin)
+        valid = scene.agent_valid
+
+        def agent_dist(i, rays_dir, frame=frame, valid=valid):
+            d = jax.vmap(_ray_box, (None, 0))(tuple(f[i] for f in frame), rays_dir)
+            return jnp.where(valid[i], d, jnp.inf)
+
         corners = jax.vmap(geometry.box_corners)(scene.agent_xy, scene.agent_yaw, scene.agent_lw[:, 0],
                                                  scene.agent_lw[:, 1])
-        groups.append((corners, scene.agent_valid, cfg.agent_tiers, agent_keys))
+        groups.append((0, corners, valid, cfg.agent_tiers, agent_dist))
     if e > 0:
-        groups.append((jnp.stack([scene.edge_a, scene.edge_b], axis=1), scene.edge_valid, cfg.edge_tiers, edge_keys))
-    for points, valid, tiers, keys_fn in groups:
+        frame = _edge_frames(scene, origin)
+        facing = geometry._cross(frame[0], -frame[1]) * scene.edge_orient < 0
+        valid = scene.edge_valid & facing
+
+        def edge_dist(i, rays_dir, frame=frame, valid=valid):
+            d = jax.vmap(_ray_segment, (None, 0))(tuple(f[i] for f in frame), rays_dir)
+            return jnp.where(valid[i], d, jnp.inf)
+
+        groups.append((k, jnp.stack([scene.edge_a, scene.edge_b], axis=1), scene.edge_valid, cfg.edge_tiers,
+                       edge_dist))
+
+    cand_ray, cand_dist, cand_id, lookup = [], [], [], []
+    base = 0
+    for id0, points, valid, tiers, dist_fn in groups:
+        n = points.shape[0]
         lo, span = jax.vmap(_angular_extent, (0, None))(points - origin, heading)
         start, count = jax.vmap(_first_ray, (0, 0, None, None))(lo, span, azimuths, full_circle)
         count = jnp.where(valid, count, -1)
-        for rows, ray in _tier_rays(start, count, tiers, spacing, z, full_circle):
+        segs = _segments(tiers, spacing, z, full_circle, n)
+        ranked = any(rows < n for rows, _, _ in segs)
+        order = jax.lax.top_k(count, n)[1] if ranked else jnp.arange(n)
+        rank = jnp.zeros((n,), jnp.int32).at[order].set(jnp.arange(n, dtype=jnp.int32)) if ranked else jnp.arange(n)
+        seg_info = []
+        for rows_n, off_lo, off_hi in segs:
+            rows = jnp.arange(n) if rows_n == n else order[:rows_n]
+            ray = start[rows][:, None] + jnp.arange(off_lo, off_hi)
+            ray = jnp.mod(ray, z) if full_circle else jnp.where(ray < z, ray, z)
             cand_ray.append(ray.reshape(-1))
-            cand_key.append(jax.vmap(keys_fn)(rows, dirs[jnp.minimum(ray, z - 1)]).reshape(-1))
+            cand_dist.append(jax.vmap(dist_fn)(rows, dirs[jnp.minimum(ray, z - 1)]).reshape(-1))
+            cand_id.append(jnp.broadcast_to((id0 + rows)[:, None], ray.shape).reshape(-1))
+            seg_info.append((base, rows_n == n, off_lo, off_hi))
+            base += rows_n * (off_hi - off_lo)
+        lookup.append((id0, n, start, rank, seg_info))
     cand_ray = jnp.concatenate(cand_ray)
-    cand_key = jnp.concatenate(cand_key)
-    layers = []
-    prev = None
-    for _ in range(cfg.depth):
-        ck = cand_key if prev is None else jnp.where(cand_key <= prev, _MISS, cand_key)
-        buf = jnp.full((z + 1,), _MISS, jnp.int32).at[cand_ray].min(ck)[:z]
-        layers.append(buf)
-        prev = jnp.concatenate([buf, jnp.full((1,), _MISS, jnp.int32)])[cand_ray]
+    cand_dist = jnp.concatenate(cand_dist)
+    cand_key = _pack(cand_dist, jnp.concatenate(cand_id).astype(jnp.int32), id_bits, max_range)
+    m = cand_key.shape[0]
+
+    def winner_index(layer):
+        # (Z,) candidate index of each ray's winning key (m: none), from the
+        # object id, its first ray and its rank: each (object, ray) pair is
+        # one candidate.
+        ident = layer & ((1 << id_bits) - 1)
+        ray = jnp.arange(z)
+        where = jnp.full((z,), m, jnp.int32)
+        for id0, n, start, rank, seg_info in lookup:
+            obj = jnp.clip(ident - id0, 0, n - 1)
+            off = ray - start[obj]
+            if full_circle:
+                off = jnp.mod(off, z)
+            pos = rank[obj]
+            idx = jnp.zeros((z,), jnp.int32)
+            for seg_base, all_rows, off_lo, off_hi in seg_info:
+                row = obj if all_rows else pos
+                idx = jnp.where(off >= off_lo, seg_base + row * (off_hi - off_lo) + (off - off_lo), idx)
+            mine = (ident >= id0) & (ident < id0 + n) & (layer != _MISS)
+            where = jnp.where(mine, idx, where)
+        return where
+
+    layers, idxs = [], []
+    ck = cand_key
+    for d in range(cfg.depth):
+        # Every candidate ray is in [0, z] (z: past a narrow fan, dropped).
+        # The next round excludes this round's winners by their index (a
+        # scatter of Z) instead of comparing every candidate with its ray's
+        # key (a gather of all candidates).
+        buf = jnp.full((z + 1,), _MISS, jnp.int32).at[cand_ray].min(ck, mode="promise_in_bounds")
+        layers.append(buf[:z])
+        idxs.append(winner_index(buf[:z]))
+        if d + 1 < cfg.depth:
+            ck = jnp.concatenate([ck, jnp.full((1,), _MISS, jnp.int32)])  # slot m: "no winner"
+            ck = ck.at[idxs[-1]].set(_MISS, mode="promise_in_bounds")[:m]
     keys = jnp.stack(layers, axis=-1)  # (Z, D)
-    return _decode(scene, keys, origin, dirs, id_bits)
+    # The winners' exact ranges: gathered from their candidates, not
+    # recomputed per (ray, layer).
+    rng = cand_dist[jnp.clip(jnp.stack(idxs, axis=-1), 0, m - 1)]
+    return _decode(scene, keys, rng, id_bits)
 
 
 def _spacing(azimuths: np.ndarray, full_circle: bool) -> float:
@@ -366,33 +462,27 @@ def _spacing(azimuths: np.ndarray, full_circle: bool) -> float:
     return float(azimuths[-1] - azimuths[0]) / max(z - 1, 1) if z > 1 else 1.0
 
 
-def _decode(scene: RayScene, keys: Array, origin: Array, dirs: Array, id_bits: int) -> PolarBuffer:
-    """Winners' exact ranges, heights, codes and rows from packed keys (Z, D)."""
+def _decode(scene: RayScene, keys: Array, rng: Array, id_bits: int) -> PolarBuffer:
+    """The buffer from the winners' packed keys (Z, D) and exact ranges (Z, D)."""
     k, e = scene.num_agents, scene.num_edges
     found = keys != _MISS
     ident = keys & ((1 << id_bits) - 1)
     is_agent = found & (ident < k)
     ka = jnp.clip(ident, 0, max(k - 1, 0))
     ke = jnp.clip(ident - k, 0, max(e - 1, 0))
-    d = jnp.broadcast_to(dirs[:, None, :], keys.shape + (2,))
-    box = jax.vmap(jax.vmap(geometry.ray_box_distance, (None, 0, 0, 0, 0)), (None, 0, 0, 0, 0))
-    r_box = box(origin, d, scene.agent_xy[ka], scene.agent_yaw[ka], scene.agent_lw[ka])
     if e > 0:
-        seg = jax.vmap(jax.vmap(geometry.ray_segment_distance, (None, 0, 0, 0)), (None, 0, 0, 0))
-        r_seg = seg(origin, d, scene.edge_a[ke], scene.edge_b[ke])
         top_seg, obj_seg = scene.edge_height[ke], k + ke
     else:
-        r_seg, top_seg, obj_seg = jnp.full(keys.shape, jnp.inf), jnp.zeros(keys.shape), jnp.zeros(keys.shape, jnp.int32)
-    rng = jnp.where(found, jnp.where(is_agent, r_box, r_seg), jnp.inf)
+        top_seg, obj_seg = jnp.zeros(keys.shape), jnp.zeros(keys.shape, jnp.int32)
     out = PolarBuffer(
-        range=rng,
+        range=jnp.where(found, rng, jnp.inf),
         top=jnp.where(is_agent, scene.agent_height[ka], top_seg),
         code=jnp.where(found, jnp.where(is_agent, scene.agent_code[ka], HIT_STATIC), HIT_NONE).astype(jnp.int32),
         agent=jnp.where(is_agent, scene.agent_row[ka], -1).astype(jnp.int32),
         object=jnp.where(found, jnp.where(is_agent, ka, obj_seg), -1).astype(jnp.int32),
     )
     # Materialise the buffer: consumers broadcast it over channels / rows and
-    # XLA would otherwise recompute the ray-box tests once per beam
+    # XLA would otherwise recompute its gathers once per beam
     # (``optimization_barrier`` does not stop XLA:CPU's fusion; a reduction does).
     return jax.tree_util.tree_map(materialize, out)
 
@@ -424,10 +514,17 @@ def beam_ranges(buf: PolarBuffer, tan_elev: np.ndarray, mount_height: float, max
     r_ground = mount_height / np.where(down, -t, 1.0)
     ground = np.where(down & (r_ground * slant <= max_range), r_ground * slant, max_range)
     t32, slant32 = t.astype(np.float32), slant.astype(np.float32)
+    # Per (layer, ray), once: the range with inf as 0 and a top of -inf where
+    # there is no face (a beam at height >= 0 is then never under it), so
+    # each beam only does ``_layer_hit``'s height and range tests.
+    finite = jnp.isfinite(buf.range)
+    rs = materialize(jnp.where(finite, buf.range, 0.0).T)  # (D, Z)
+    top = materialize(jnp.where(finite, buf.top, -jnp.inf).T)
     out = jnp.broadcast_to(jnp.asarray(ground, jnp.float32), (t.shape[0], buf.range.shape[0]))
     for d in reversed(range(buf.range.shape[1])):
-        rs, hit = _layer_hit(buf.range[:, d], buf.top[:, d], t32, slant32, mount_height, max_range)
-        out = jnp.where(hit, rs * slant32, out)
+        h = mount_height + rs[d] * t32
+        m = rs[d] * slant32
+        out = jnp.where((h >= 0.0) & (h <= top[d]) & (m <= max_range), m, out)
     return out
 
 
