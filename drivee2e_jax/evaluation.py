@@ -19,7 +19,7 @@ from drivee2e_jax.io.results import event_key
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.metrics import finegrained
 from drivee2e_jax.observe import sensors
-from drivee2e_jax.rollout import ControlTiming, Rollout, shard_rollout_inputs
+from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, shard_rollout_inputs
 from drivee2e_jax.sim import Simulator, SimConfig
 
 
@@ -69,6 +69,8 @@ def evaluate(
       split: split name; ``None`` = every scenario.
       params: policy parameters (``policy.init`` is called when None).
       progress: ``progress(done_steps, total_steps)`` after every chunk.
+      chunk: at most this many steps per compiled chunk; the chunks are
+        evened out over the longest episode (``rollout.balanced_chunk``).
       maps: {map_id: MapRecord}, needed for the BEV when ``suite`` is a
         ``PackedBatch`` (a ``Suite`` provides its own).
       seeds: repetitions in ONE rollout: the batch is tiled ``len(seeds)``
@@ -112,6 +114,7 @@ def evaluate(
         params = init_params(policy, sim, batch, key, assets)
     b = int(batch.ego_index.shape[0])
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+    chunk = balanced_chunk(total, chunk, (timing or ControlTiming()).control_every)
 
     t0 = time.perf_counter()
     keys = _scenario_keys(key, n_split, index) if seeds is None else _repetition_keys(seeds, n_split, index)

@@ -176,6 +176,20 @@ class Rollout:
         return carry, stacked
 
 
+def balanced_chunk(total_steps: int, max_chunk: int, multiple: int = 1) -> int:
+    """Steps per compiled chunk so that ``ceil(total_steps / max_chunk)``
+    chunks cover ``total_steps`` with the least overshoot, rounded up to a
+    multiple of ``multiple`` (``control_every``, so query-free steps stay
+    static). E.g. 207 steps, ``max_chunk`` 50: 5 chunks of 42 (210 steps)
+    instead of 5 of 50 (250 steps, 43 stepped after every log has ended)."""
+    if total_steps < 1 or max_chunk < 1 or multiple < 1:
+        raise ValueError(f"balanced_chunk: expected total_steps, max_chunk, multiple >= 1, got "
+                         f"{total_steps}, {max_chunk}, {multiple}")
+    n = -(-total_steps // max_chunk)
+    size = -(-total_steps // n)
+    return -(-size // multiple) * multiple
+
+
 def _with_params(fn, get_extra):
     """Bind the sensor assets and policy params as the jitted function's last arguments."""
 

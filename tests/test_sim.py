@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 import sim_scenarios as ss
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from drivee2e_jax.evaluation import evaluate
 from drivee2e_jax.policy import StatelessPolicy, load_policy
-from drivee2e_jax.rollout import ControlTiming, Rollout
+from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk
 from drivee2e_jax.sim import SimConfig, Simulator, sanitize_controls, score_preset
 from drivee2e_jax.types import Controls
 
@@ -134,6 +136,27 @@ def test_no_recompilation_across_chunks(log_replay, batch):
     for _ in range(3):
         carry, _ = ro.advance(b, carry, None, None)
     chex.clear_trace_counter()
+
+
+@settings(deadline=None, max_examples=200)
+@given(total=st.integers(1, 2000), max_chunk=st.integers(1, 120), multiple=st.integers(1, 6))
+def test_balanced_chunk_covers_the_episode_in_as_many_chunks_with_least_overshoot(total, max_chunk, multiple):
+    c = balanced_chunk(total, max_chunk, multiple)
+    n = -(-total // c)
+    assert c % multiple == 0 and n * c >= total
+    assert n <= -(-total // max_chunk)  # never more compiled-chunk calls than max_chunk gives
+    assert n * c - total < n * multiple  # overshoot only from rounding up to the multiple
+    if multiple == 1:
+        assert c <= max_chunk
+
+
+def test_evaluate_steps_the_episode_length_not_a_whole_number_of_max_chunks(log_replay, batch):
+    one = batch.select([0])
+    total = int(Simulator(SimConfig()).episode_steps(jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), one.scenario)))
+    res = evaluate(log_replay, one, None, chunk=total - 1)  # two chunks of ceil(total / 2)
+    assert res.logs.xy.shape[1] == 2 * -(-total // 2) < 2 * (total - 1)
+    with pytest.raises(ValueError, match="balanced_chunk"):
+        balanced_chunk(0, 50)
 
 
 def test_control_timing_holds_and_delays_actions(log_replay, batch):

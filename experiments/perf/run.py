@@ -159,7 +159,7 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
 
     from drivee2e_jax.evaluation import init_params, with_policy_sensors
     from drivee2e_jax.observe import sensors
-    from drivee2e_jax.rollout import Rollout
+    from drivee2e_jax.rollout import Rollout, balanced_chunk
     from drivee2e_jax.scenario import load_suite
     from drivee2e_jax.sim import SimConfig, Simulator
 
@@ -181,6 +181,9 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
         from drivee2e_jax.rollout import shard_rollout_inputs
 
         scn, keys, assets = shard_rollout_inputs(scn, keys, assets)
+    # The episode length (the longest log), in evened-out chunks as ``bench`` runs it.
+    total = steps or int(np.max(np.asarray(jax.vmap(sim.episode_steps)(packed.scenario))))
+    chunk = balanced_chunk(total, chunk)
     ro = Rollout(sim, pol, params, chunk=chunk, assets=assets)
     t0 = time.perf_counter()
     ro.init.lower(scn, keys).compile()
@@ -191,8 +194,7 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     carry, _ = ro.advance(scn, carry)  # runs the compiled chunk once (jit cache), then restart
     jax.block_until_ready(carry)
     carry = ro.init(scn, keys)
-    total = steps or int(scn.tracks.valid.shape[-1]) - 1
-    n_chunks = max(1, -(-total // chunk))
+    n_chunks = -(-total // chunk)
     t0 = time.perf_counter()
     for _ in range(n_chunks):
         carry, _ = ro.advance(scn, carry)
