@@ -25,8 +25,8 @@ def add_parser(subparsers) -> None:
     p = common.add_command(
         subparsers, "view", help="write an HTML episode player for a results folder",
         description="Re-simulate episodes of a `drivee2e bench` results folder and write one self-contained "
-                    "HTML file that plays them: top-down scene, the policy's BEV and LiDAR, metric timelines "
-                    "and infractions.",
+                    "HTML file that plays them: top-down scene, the BEV the policy saw (its own size and route "
+                    "window), a LiDAR point cloud, metric timelines and infractions.",
         epilog=EPILOG,
     )
     p.add_argument("results_dir", type=Path, metavar="RESULTS_DIR", help="a `drivee2e bench` output folder")

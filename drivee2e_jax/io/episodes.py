@@ -28,9 +28,14 @@ Conventions per field group:
   (index 0 is empty: zeros).
 
 Frames and units as in ``types``: world x east, y north, m; yaw CCW from +x,
-rad; s; m/s. Sensors are rendered from the ego's SIMULATED state with the
-trace's own ``SensorConfig`` (``observe.bev`` / ``observe.lidar``), whatever
-the policy itself saw.
+rad; s; m/s. Sensors are rendered from the SIMULATED state of each instant.
+The BEV frame k is ``Simulator.observe`` of state k, the function the
+rollout renders the policy's observation with (same route window around the
+ego's route progress, ``observe.bev.route_window``): for a policy that sees a
+BEV it is bit for bit the BEV the policy received at step k, at the policy's
+own ``sensor_config`` (size, resolution, channels); a policy without one gets
+the trace's BEV (``default_sensor_config``). The LiDAR is the trace's own light
+point cloud (``observe.lidar``), whatever LiDAR the policy saw.
 """
 
 from __future__ import annotations
@@ -331,7 +336,8 @@ def trace_episodes(
       scenario_ids: ids to trace (None: every scenario of the run).
       sensors: subset of ``("bev", "lidar")`` to render per step (``()``: none).
       sensor_config: an ``observe.sensors.SensorConfig`` overriding
-        ``default_sensor_config(sensors)``.
+        ``default_sensor_config(sensors)``; its BEV is used only for a policy
+        that sees none (``trace_bev_sensors``).
       limit: only the first N chosen scenarios.
 
     Raises DriveE2EError (one line) on a bad folder, policy or scenario id.
@@ -343,13 +349,14 @@ def trace_episodes(
     if limit is not None:
         rows = rows[: max(int(limit), 0)]
     sensor_cfg = sensor_config if sensor_config is not None else default_sensor_config(tuple(sensors))
-    sim_out = _simulate(run, suite, packed, rows)
+    sim_out = _simulate(_load_run_policy(run), _run_settings(run), suite, packed, rows)
     stored = stored_rows(run)
-    frames = _frames(sim_out, suite, packed, rows, sensor_cfg)
+    bev_sim, frames = _frames(sim_out, suite, packed, rows, sensor_cfg)
+    bev_cfg = None if bev_sim is None else bev_sim.config.sensors.bev
     traces = []
     for j, row in enumerate(rows):
         sid = str(packed.meta.scenario_id[row])
-        tr = _episode_trace(run, packed, int(row), j, sim_out, frames, stored.get(sid, {}), sensor_cfg)
+        tr = _episode_trace(run, packed, int(row), j, sim_out, frames, stored.get(sid, {}), bev_cfg)
         if not tr.reproduced:
             warnings.warn(f"{sid}: re-simulated driving score {tr.driving_score:.4f} differs from the stored "
                           f"{tr.stored_driving_score:.4f} ({run.path})", stacklevel=2)
@@ -357,77 +364,103 @@ def trace_episodes(
     return traces
 
 
+@dataclasses.dataclass(frozen=True)
+class RunSettings:
+    """The rollout settings of a run (``run.json``): simulator config without
+    the policy's sensors, control timing and PRNG seed."""
+
+    sim: Any  # sim.SimConfig
+    timing: Any  # rollout.ControlTiming
+    seed: int
+
+
+def _run_settings(run: RunRecord) -> RunSettings:
+    """``RunSettings`` of ``run.json`` (as ``bench.run_bench`` builds them)."""
+    from drivee2e_jax.observe.vector import ObsConfig
+    from drivee2e_jax.rollout import ControlTiming
+    from drivee2e_jax.sim import SimConfig, score_preset
+
+    info = run.info
+    try:
+        obs = dataclasses.replace(ObsConfig(), gps_noise_std=float(info.get("gps_noise_std", 0.0)),
+                                  compass_noise_std=float(info.get("compass_noise_std", 0.0)))
+        sim_cfg = SimConfig(dt=float(info["dt"]), score=score_preset(info.get("preset", "paper")), obs=obs)
+        timing = ControlTiming(int(info.get("control_every", 1)), int(info.get("latency", 0)))
+    except ValueError as e:
+        raise DriveE2EError(f"{run.path / 'run.json'}: {e}") from e
+    return RunSettings(sim=sim_cfg, timing=timing, seed=int(info.get("seed", 0)))
+
+
 def _tracing_rollout_cls():
     from drivee2e_jax.rollout import Rollout
 
     class TracingRollout(Rollout):
-        """A Rollout whose scan also emits the action applied each step."""
+        """A Rollout whose scan also emits, per step, the action applied and
+        the simulator state after the step (without its per-episode constants
+        ``ctx``): the trace renders its frames from those states with
+        ``Simulator.observe``, the function the policy's observation comes from."""
 
-        def _advance_one(self, scenario, carry, assets, params):
-            import jax
-
-            def body(c, _):
-                c, log = self._step_one(scenario, c, assets, params)
-                return c, (log, c.held)
-
-            return jax.lax.scan(body, carry, None, length=self.chunk)
+        def _step_one(self, scenario, carry, assets, params, query=None):
+            carry, log = super()._step_one(scenario, carry, assets, params, query)
+            return carry, (log, carry.held, carry.sim.replace(ctx=None))
 
     return TracingRollout
 
 
-def _simulate(run: RunRecord, suite, packed, rows: np.ndarray) -> dict:
-    """Roll the run's policy out exactly as ``evaluate`` did; keep ``rows``.
+def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> dict:
+    """Roll ``pol`` out on ``packed`` exactly as ``evaluate`` did; keep ``rows``.
 
     The whole evaluated batch is re-run, not only ``rows``: the same batch
-    shape, PRNG keys and parameters as the bench, so the compiled program is
-    the bench's (a persistent-cache hit for a controls policy) and the floats
-    are bit-identical whichever scenarios are asked for.
+    shape, PRNG keys and parameters as the bench, so the floats are
+    bit-identical whichever scenarios are asked for.
+
+    Returns {"sim": the rollout's Simulator, "assets": its SensorAssets of
+    ``packed`` (None without a BEV), and for ``rows`` only (leading axis
+    len(rows)): "ctx" ``sim.SimContext``, "states" ``SimState`` without ctx
+    with axis 1 = T_pad + 1 instants (the reset state, then the state after
+    every step), "logs" ``StepLog`` (T_pad steps), "actions" the applied
+    actions (T_pad steps; None for a controls policy), "driving_score" (len(rows),),
+    "batch" the numpy ``Scenario`` rows}.
     """
     import jax
 
     from drivee2e_jax.evaluation import device_batch, init_params, with_policy_sensors
     from drivee2e_jax.metrics import episode as ep
     from drivee2e_jax.observe import sensors as sensors_mod
-    from drivee2e_jax.observe.vector import ObsConfig
-    from drivee2e_jax.rollout import ControlTiming, Rollout
-    from drivee2e_jax.sim import Simulator, SimConfig, score_preset
-    from drivee2e_jax.types import to_numpy
+    from drivee2e_jax.rollout import balanced_chunk
+    from drivee2e_jax.sim import Simulator
 
-    info = run.info
-    pol = _load_run_policy(run)
     try:
-        obs = ObsConfig(gps_noise_std=float(info.get("gps_noise_std", 0.0)),
-                        compass_noise_std=float(info.get("compass_noise_std", 0.0)))
-        sim_cfg = SimConfig(dt=float(info["dt"]), score=score_preset(info.get("preset", "paper")), obs=obs)
-        cfg = with_policy_sensors(sim_cfg, pol)
-        timing = ControlTiming(int(info.get("control_every", 1)), int(info.get("latency", 0)))
-    except ValueError as e:
-        raise DriveE2EError(f"{run.path / 'run.json'}: {e}") from e
-    assets = sensors_mod.build_assets(packed, cfg.sensors, suite.maps) if cfg.sensors.bev is not None else None
+        cfg = with_policy_sensors(settings.sim, pol)
+    except ValueError as e:  # an unknown required sensor
+        raise DriveE2EError(f"policy {getattr(pol, 'name', '?')!r}: {e}") from e
+    assets = sensors_mod.build_assets(packed, cfg.sensors, suite.maps)
     batch, _ = device_batch(packed)
     sim = Simulator(cfg)
-    key = jax.random.PRNGKey(int(info.get("seed", 0)))
+    key = jax.random.PRNGKey(settings.seed)
     params = init_params(pol, sim, batch, key, assets)
-    # A controls policy's actions are in the StepLog; a waypoint policy's
-    # plan needs the scan to emit the applied action as well.
-    waypoints = pol.action_type == "waypoints"
-    ro = (_tracing_rollout_cls() if waypoints else Rollout)(sim, pol, params, timing=timing, assets=assets)
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+    chunk = balanced_chunk(total, 50, settings.timing.control_every)  # as evaluate chunks it
+    ro = _tracing_rollout_cls()(sim, pol, params, timing=settings.timing, chunk=chunk, assets=assets)
+    pick = lambda tree: jax.tree_util.tree_map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
     carry = ro.init(batch, jax.random.split(key, len(packed)))
-    ego0 = to_numpy(carry.sim.ego)
-    logs, actions, steps = [], [], 0
+    first = pick(carry.sim)
+    chunks, steps = [], 0
     while steps < total and not bool(np.all(np.asarray(carry.sim.episode.done))):
         carry, out = ro.advance(batch, carry)
-        log, held = out if waypoints else (out, None)
-        logs.append(to_numpy(log))
-        actions.append(to_numpy(held))
+        chunks.append(pick(out))
         steps += ro.chunk
+    logs, actions, states = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *chunks)
+    states = jax.tree_util.tree_map(lambda a, b: np.concatenate([a[:, None], b], axis=1),
+                                    first.replace(ctx=None), states)
     res = jax.vmap(ep.finalize, in_axes=(0, 0, None))(carry.sim.episode, batch.route, cfg.score)
-    pick = lambda tree: jax.tree_util.tree_map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
     return {
-        "ego0": pick(ego0),
-        "logs": pick(jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *logs)),
-        "actions": pick(jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *actions)) if waypoints else None,
+        "sim": sim,
+        "assets": assets,
+        "ctx": first.ctx,
+        "states": states,
+        "logs": logs,
+        "actions": actions if pol.action_type == "waypoints" else None,
         "driving_score": np.asarray(res.driving_score)[rows],
         "batch": pick(packed.scenario),
     }
@@ -443,50 +476,46 @@ def _episode_length(log_active: np.ndarray) -> int:
 # --------------------------------------------------------------------------
 
 
-def _frame_fn(sensor_cfg):
-    """jit(vmap over time) of one scenario's replayed agents, signals and sensors."""
+def trace_bev_sensors(policy_sensors, sensor_cfg):
+    """The ``SensorConfig`` the trace's BEV frames are rendered with: the
+    policy's own (``policy_sensors``, the rollout's ``SimConfig.sensors``)
+    when it sees a BEV, so each frame IS the policy's observation; else the
+    BEV of ``sensor_cfg`` (the trace's). None when ``sensor_cfg`` asks for no BEV."""
+    from drivee2e_jax.observe.sensors import SensorConfig
+
+    if sensor_cfg.bev is None:
+        return None
+    if policy_sensors.bev is not None:
+        return dataclasses.replace(policy_sensors, lidar=None)
+    return SensorConfig(bev=sensor_cfg.bev, scene=sensor_cfg.scene, raster_resolution=sensor_cfg.raster_resolution)
+
+
+def _frame_fn(sim, bev_sim, lidar_cfg, scene_cfg):
+    """jit(vmap over time) of one scenario's replayed agents, signals and
+    sensors: the BEV is ``bev_sim.observe(...).bev`` of each traced state
+    (exactly the policy's observation when ``bev_sim`` is the rollout's
+    simulator), the LiDAR a point cloud of ``lidar_cfg``."""
     import jax
-    import jax.numpy as jnp
 
     from drivee2e_jax import replay
     from drivee2e_jax.observe import lidar as lidar_mod
     from drivee2e_jax.observe import raycast
-    from drivee2e_jax.observe import sensors as sensors_mod
 
-    bev_cfg = dataclasses.replace(sensor_cfg, lidar=None)
-
-    def one(scenario, ego, assets):
-        tr, m = scenario.tracks, scenario.map
-        agents = replay.agents_at(tr, ego.t, scenario.dt_log)
-        signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
-        seen = agents.replace(valid=agents.valid & (jnp.arange(agents.valid.shape[0]) != scenario.ego_index))
-        out = {"agents": agents, "signals": signals}
-        if sensor_cfg.bev is not None:
-            out["bev"] = sensors_mod.render(
-                bev_cfg, ego=ego, ego_lw=tr.size[scenario.ego_index, :2], agents=seen, size=tr.size,
-                category=tr.category, ego_row=scenario.ego_index, obstacles=m.obstacles,
-                obstacle_height=m.obstacle_height, stop_state=signals, route_xy=scenario.route.xy,
-                route_valid=scenario.route.valid, assets=assets,
-            )["bev"]
-        if sensor_cfg.lidar is not None:
+    def one(scenario, ctx, state, assets):
+        state = state.replace(ctx=ctx)
+        ego, tr, m = state.ego, scenario.tracks, scenario.map
+        seen = sim.agents(scenario, ego.t)
+        out = {"agents": seen, "signals": replay.signals_at(scenario.signals, ego.t, scenario.dt_log)}
+        if bev_sim is not None:
+            out["bev"] = bev_sim.observe(scenario, state, assets).bev
+        if lidar_cfg is not None:
             scene = raycast.select_scene(ego.xy, seen, tr.size, tr.category, m.obstacles, m.obstacle_height,
-                                         sensor_cfg.scene, exclude=scenario.ego_index)
-            scan = lidar_mod.lidar_scan(scene, ego.xy, ego.yaw, sensor_cfg.lidar)
+                                         scene_cfg, exclude=scenario.ego_index)
+            scan = lidar_mod.lidar_scan(scene, ego.xy, ego.yaw, lidar_cfg)
             out["lidar_points"], out["lidar_class"], out["lidar_valid"] = scan.points, scan.hit_class.reshape(-1), scan.valid
         return out
 
-    return jax.jit(jax.vmap(one, in_axes=(None, 0, None)))
-
-
-def _ego_states(sim_out: dict, j: int):
-    """EgoState with leading axis T_pad + 1: the reset state then every logged step."""
-    from drivee2e_jax.types import EgoState
-
-    e0 = _row(sim_out["ego0"], j)
-    log = _row(sim_out["logs"], j)
-    fields = {"xy": log.xy, "yaw": log.yaw, "speed": log.speed, "accel": log.accel, "steer": log.steer,
-              "yaw_rate": log.yaw_rate, "t": log.t}
-    return EgoState(**{k: np.concatenate([np.asarray(getattr(e0, k))[None], v]) for k, v in fields.items()})
+    return jax.jit(jax.vmap(one, in_axes=(None, None, 0, None)))
 
 
 def _row(tree, i: int):
@@ -496,22 +525,28 @@ def _row(tree, i: int):
     return jax.tree_util.tree_map(lambda a: a[i], tree)
 
 
-def _frames(sim_out: dict, suite, packed, rows: np.ndarray, sensor_cfg) -> list[dict]:
-    """Per chosen episode: numpy frames over the padded trace length (one compile)."""
+def _frames(sim_out: dict, suite, packed, rows: np.ndarray, sensor_cfg):
+    """(the Simulator the BEV frames come from or None, per chosen episode:
+    numpy frames over the padded trace length (one compile))."""
     from drivee2e_jax.observe import sensors as sensors_mod
+    from drivee2e_jax.sim import Simulator
     from drivee2e_jax.types import to_numpy
 
-    fn = _frame_fn(sensor_cfg)
-    assets = None
-    if sensor_cfg.bev is not None:
-        assets = sensors_mod.build_assets(packed.select(rows), sensor_cfg, suite.maps)
+    sim = sim_out["sim"]
+    bev_sensors = trace_bev_sensors(sim.config.sensors, sensor_cfg)
+    if bev_sensors is None:
+        bev_sim, assets = None, None
+    elif bev_sensors == dataclasses.replace(sim.config.sensors, lidar=None):  # the policy's own BEV
+        bev_sim, assets = sim, sim_out["assets"]
+    else:
+        bev_sim = Simulator(dataclasses.replace(sim.config, sensors=bev_sensors))
+        assets = sensors_mod.build_assets(packed, bev_sensors, suite.maps)
+    fn = _frame_fn(sim, bev_sim, sensor_cfg.lidar, sensor_cfg.scene)
     out = []
-    for j in range(len(rows)):
-        scenario = _row(sim_out["batch"], j)
-        a = None if assets is None else assets.replace(map_index=np.asarray(assets.map_index)[j])
-        frames = fn(scenario, _ego_states(sim_out, j), a)
-        out.append(to_numpy(frames))
-    return out
+    for j, row in enumerate(rows):
+        a = None if assets is None else assets.replace(map_index=np.asarray(assets.map_index)[row])
+        out.append(to_numpy(fn(_row(sim_out["batch"], j), _row(sim_out["ctx"], j), _row(sim_out["states"], j), a)))
+    return bev_sim, out
 
 
 # --------------------------------------------------------------------------
@@ -560,7 +595,9 @@ def _timeline(log, n: int, ego_speed: np.ndarray, rc0: float) -> dict:
 
 
 def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, frames: list, stored: dict,
-                   sensor_cfg) -> EpisodeTrace:
+                   bev_cfg) -> EpisodeTrace:
+    """Trace of chosen row ``j`` (packed row ``row``); ``bev_cfg``: the
+    ``BevConfig`` of ``frames``' BEV (None: no BEV)."""
     from drivee2e_jax.geometry import from_frame
     from drivee2e_jax.metrics import episode as ep
     from drivee2e_jax.types import Waypoints
@@ -571,7 +608,7 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
     n = _episode_length(np.asarray(log.active))
     t_len = n + 1
     sc = _row(sim_out["batch"], j)
-    ego = _ego_states(sim_out, j)
+    ego = _row(sim_out["states"], j).ego  # (T_pad + 1,) instants
     cut = lambda a: np.asarray(a)[:t_len]  # noqa: E731
     fr = frames[j]
     meta = {k: str(getattr(packed.meta, k)[row]) for k in
@@ -640,10 +677,10 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
     if "bev" in fr:
         from drivee2e_jax.observe.bev import unpack_bits
 
-        names = sensor_cfg.bev.channel_names
+        names = bev_cfg.channel_names
         bits = np.asarray(unpack_bits(cut(fr["bev"]), len(names))) > 0.5
         trace.bev = {c: bits[..., i] for i, c in enumerate(names)}
-        trace.bev_resolution = float(sensor_cfg.bev.resolution)
+        trace.bev_resolution = float(bev_cfg.resolution)
     if "lidar_points" in fr:
         trace.lidar_points = cut(fr["lidar_points"]).astype(np.float32)
         trace.lidar_class = cut(fr["lidar_class"]).astype(np.int8)
