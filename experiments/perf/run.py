@@ -8,7 +8,8 @@ Configurations (``--configs``, default both):
 * ``state_only`` = dynamics + replay + infractions + criteria + vector
   observations with the ``log_replay`` policy, at batch sizes B (default 1,
   64, 800 scenarios of the suite);
-* ``sweep_bev_lidar`` = the whole suite (800 episodes x the log length) with
+* ``sweep_bev_lidar`` = the whole suite (800 episodes x the episode length,
+  ``Simulator.episode_steps``: 200 steps of 0.1 s on twin15) with
   the 128 x 128 BEV and the 64 x 360 LiDAR on and a small MLP policy reading
   both (issue budget: <= 60 s after compilation); reports ``wall_s`` and
   ``compile_s`` (ahead-of-time lower + compile of init and advance).
@@ -229,7 +230,7 @@ def main(argv=None) -> int:
     ap.add_argument("--suite", default="twin15")
     ap.add_argument("--batches", default="1,64,800", help="comma-separated batch sizes (default 1,64,800)")
     ap.add_argument("--chunk", type=int, default=50, help="steps per compiled advance (default 50)")
-    ap.add_argument("--steps", type=int, default=None, help="simulated steps (default: the log length)")
+    ap.add_argument("--steps", type=int, default=None, help="simulated steps (default: the episode length, Simulator.episode_steps)")
     ap.add_argument("--no-compile", action="store_true", help="skip the cold/cached compile probes")
     ap.add_argument("--json", action="store_true", help="one JSON object per line")
     ap.add_argument("--configs", default="state_only,sweep_bev_lidar",
