@@ -12,7 +12,9 @@ Configurations (``--configs``, default both):
   ``Simulator.episode_steps``: 200 steps of 0.1 s on twin15) with
   the 128 x 128 BEV and the 64 x 360 LiDAR on and a small MLP policy reading
   both (issue budget: <= 60 s after compilation); reports ``wall_s`` and
-  ``compile_s`` (ahead-of-time lower + compile of init and advance).
+  ``compile_s`` (ahead-of-time lower + compile of init and advance), the
+  process ``cpu_s`` of the timed loop and the 1-minute load average before
+  and after it (on a shared machine the wall varies by ~40 %).
  For each it reports scenario-steps/s,
 agent-steps/s (valid replayed agents, the ego included, summed over the
 simulated steps), compile time cold and from JAX's persistent compilation
@@ -196,14 +198,19 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     jax.block_until_ready(carry)
     carry = ro.init(scn, keys)
     n_chunks = -(-total // chunk)
-    t0 = time.perf_counter()
+    load_before = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(n_chunks):
         carry, _ = ro.advance(scn, carry)
     jax.block_until_ready(carry)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    # The machine may be shared: the load around the timed loop and its
+    # process CPU time say how much of the wall was ours.
     return {"config": "sweep_bev_lidar", "suite": suite_name, "batch": b, "steps": n_chunks * chunk,
-            "bev": "128x128", "lidar": "64x360", "devices": jax.local_device_count(), "wall_s": wall, "compile_s": compile_s, "raster_s": raster_s,
-            "scenario_steps_per_s": b * n_chunks * chunk / wall, "raster_mb": assets.raster.nbytes / 2**20}
+            "bev": "128x128", "lidar": "64x360", "devices": jax.local_device_count(), "wall_s": wall, "cpu_s": cpu,
+            "compile_s": compile_s, "raster_s": raster_s, "scenario_steps_per_s": b * n_chunks * chunk / wall,
+            "raster_mb": assets.raster.nbytes / 2**20, "load_1min_before": load_before,
+            "load_1min_after": os.getloadavg()[0]}
 
 
 def _probe_subprocess(suite, batch, chunk, cache_dir) -> dict:
