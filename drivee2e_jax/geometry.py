@@ -456,12 +456,18 @@ def ray_segment_distance(origin: Array, direction: Array, a: Array, b: Array) ->
     measure-zero case). Differentiable in all arguments away from the end
     points; the gradient is zero on a miss.
     """
-    e = b - a
+    e, w = b - a, a - origin
+    return segment_entry(e, w, _cross(w, e), direction)
+
+
+def segment_entry(e: Array, w: Array, w_x_e: Array, direction: Array) -> Array:
+    """``ray_segment_distance`` from the per-segment terms ``e = b - a``,
+    ``w = a - origin`` (each (..., 2)) and ``w_x_e = cross(w, e)``, so a caller
+    casting many rays at one segment computes them once (observe/raycast.py)."""
     den = _cross(direction, e)
     ok = jnp.abs(den) > _TINY
     den = jnp.where(ok, den, 1.0)
-    w = a - origin
-    t = _cross(w, e) / den
+    t = w_x_e / den
     s = _cross(w, direction) / den
     hit = ok & (t > 0.0) & (s >= 0.0) & (s <= 1.0)
     return jnp.where(hit, t, jnp.inf)

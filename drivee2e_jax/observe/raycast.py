@@ -318,16 +318,9 @@ def _edge_frames(scene: RayScene, origin: Array) -> tuple[Array, ...]:
 
 
 def _ray_segment(frame: tuple[Array, ...], direction: Array) -> Array:
-    """``geometry.ray_segment_distance`` (same operations, same result) from an
-    edge frame of ``_edge_frames`` and a unit ``direction (2,)``."""
-    e, w, w_x_e = frame
-    den = geometry._cross(direction, e)
-    ok = jnp.abs(den) > geometry._TINY
-    den = jnp.where(ok, den, 1.0)
-    t = w_x_e / den
-    s = geometry._cross(w, direction) / den
-    hit = ok & (t > 0.0) & (s >= 0.0) & (s <= 1.0)
-    return jnp.where(hit, t, jnp.inf)
+    """``geometry.ray_segment_distance`` from an edge frame of ``_edge_frames``
+    and a unit ``direction (2,)``."""
+    return geometry.segment_entry(*frame, direction)
 
 
 def polar_buffer(
@@ -487,14 +480,22 @@ def _decode(scene: RayScene, keys: Array, rng: Array, id_bits: int) -> PolarBuff
     return jax.tree_util.tree_map(materialize, out)
 
 
-def _layer_hit(r: Array, top: Array, t, slant, mount_height: float, max_range: float) -> tuple[Array, Array]:
-    """(r with inf as 0, whether beams of tangent ``t`` hit the face at
-    horizontal range ``r``: their height there is within [0, ``top``] and
-    their 3-D distance ``r * slant`` within ``max_range``)."""
-    finite = jnp.isfinite(r)
-    rs = jnp.where(finite, r, 0.0)
+def _layer_terms(buf: PolarBuffer) -> tuple[Array, Array]:
+    """Per (layer, ray), computed once for all beams: the range with inf as 0
+    and the face top with -inf where there is no face (a beam at height
+    >= 0 is then never under it); each (D, Z)."""
+    finite = jnp.isfinite(buf.range)
+    return (materialize(jnp.where(finite, buf.range, 0.0).T),
+            materialize(jnp.where(finite, buf.top, -jnp.inf).T))
+
+
+def _layer_hit(rs: Array, top: Array, t, slant, mount_height: float, max_range: float) -> tuple[Array, Array]:
+    """(3-D distance ``rs * slant``, whether beams of tangent ``t`` hit the
+    face at horizontal range ``rs``: their height there is within [0, ``top``]
+    and the distance within ``max_range``), from one layer of ``_layer_terms``."""
     h = mount_height + rs * t
-    return rs, finite & (h >= 0.0) & (h <= top) & (rs * slant <= max_range)
+    m = rs * slant
+    return m, (h >= 0.0) & (h <= top) & (m <= max_range)
 
 
 def beam_ranges(buf: PolarBuffer, tan_elev: np.ndarray, mount_height: float, max_range: float) -> Array:
@@ -514,17 +515,11 @@ def beam_ranges(buf: PolarBuffer, tan_elev: np.ndarray, mount_height: float, max
     r_ground = mount_height / np.where(down, -t, 1.0)
     ground = np.where(down & (r_ground * slant <= max_range), r_ground * slant, max_range)
     t32, slant32 = t.astype(np.float32), slant.astype(np.float32)
-    # Per (layer, ray), once: the range with inf as 0 and a top of -inf where
-    # there is no face (a beam at height >= 0 is then never under it), so
-    # each beam only does ``_layer_hit``'s height and range tests.
-    finite = jnp.isfinite(buf.range)
-    rs = materialize(jnp.where(finite, buf.range, 0.0).T)  # (D, Z)
-    top = materialize(jnp.where(finite, buf.top, -jnp.inf).T)
+    rs, top = _layer_terms(buf)
     out = jnp.broadcast_to(jnp.asarray(ground, jnp.float32), (t.shape[0], buf.range.shape[0]))
     for d in reversed(range(buf.range.shape[1])):
-        h = mount_height + rs[d] * t32
-        m = rs[d] * slant32
-        out = jnp.where((h >= 0.0) & (h <= top[d]) & (m <= max_range), m, out)
+        m, hit = _layer_hit(rs[d], top[d], t32, slant32, mount_height, max_range)
+        out = jnp.where(hit, m, out)
     return out
 
 
@@ -562,8 +557,9 @@ def solve_elevation(buf: PolarBuffer, tan_elev: Array, mount_height: float, max_
     ground = down & (r_ground * slant <= max_range)
     shape = jnp.broadcast_shapes(t.shape, buf.range.shape[:1])
     layer = jnp.broadcast_to(jnp.where(ground, depth, -1), shape)
+    rs, top = _layer_terms(buf)
     for d in reversed(range(depth)):
-        _, hit = _layer_hit(buf.range[:, d], buf.top[:, d], t, slant, mount_height, max_range)
+        _, hit = _layer_hit(rs[d], top[d], t, slant, mount_height, max_range)
         layer = jnp.where(hit, d, layer)
     # Materialise the choice once: otherwise XLA re-fuses the whole solve into
     # every consumer (range, class, agent, points), several times the cost.

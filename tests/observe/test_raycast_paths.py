@@ -7,8 +7,10 @@
   window rule (an object of rank r by ray count is tested on the
   ``W(r)`` rays from its first ray; per ray the D smallest packed keys), in
   crowded scenes where the windows really clip.
-* ``beam_ranges`` hoists the per-(layer, ray) terms: compared bit-for-bit with
-  the per-beam rule ``_layer_hit`` (nearest hit layer, else the ground).
+* ``beam_ranges`` hoists the per-(layer, ray) terms (``_layer_terms``):
+  compared bit-for-bit with the per-beam rule written out on the raw buffer
+  (a finite face whose height span holds the beam, nearest layer, else the
+  ground).
 """
 
 from __future__ import annotations
@@ -139,8 +141,12 @@ def test_beam_ranges_equal_layer_rule(seed, z0, max_range):
         ground = np.where((t < 0) & (r_ground * slant <= max_range), r_ground * slant, max_range)
         t32, s32 = jnp.asarray(t, jnp.float32), jnp.asarray(slant, jnp.float32)
         out = jnp.broadcast_to(jnp.asarray(ground, jnp.float32), (t.shape[0], z))
-        for d in reversed(range(depth)):
-            rsd, hit = raycast._layer_hit(b.range[:, d], b.top[:, d], t32, s32, float(z0), max_range)
+        for d in reversed(range(depth)):  # the per-beam rule, straight from the buffer
+            r, top = b.range[:, d], b.top[:, d]
+            finite = jnp.isfinite(r)
+            rsd = jnp.where(finite, r, 0.0)
+            h = float(z0) + rsd * t32
+            hit = finite & (h >= 0.0) & (h <= top) & (rsd * s32 <= max_range)
             out = jnp.where(hit, rsd * s32, out)
         return out
 
