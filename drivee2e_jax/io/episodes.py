@@ -536,7 +536,7 @@ def _frames(sim_out: dict, suite, packed, rows: np.ndarray, sensor_cfg):
     bev_sensors = trace_bev_sensors(sim.config.sensors, sensor_cfg)
     if bev_sensors is None:
         bev_sim, assets = None, None
-    elif bev_sensors == dataclasses.replace(sim.config.sensors, lidar=None):  # the policy's own BEV
+    elif sim.config.sensors.bev is not None:  # the policy sees a BEV: trace_bev_sensors kept its own
         bev_sim, assets = sim, sim_out["assets"]
     else:
         bev_sim = Simulator(dataclasses.replace(sim.config, sensors=bev_sensors))
