@@ -6,6 +6,8 @@ observations -> policy -> action -> dynamics -> infractions -> metrics -> result
 
 __version__ = "0.1.0"
 
+import importlib
+
 from drivee2e_jax.scenario import load_suite  # noqa: E402
 
 # The JAX-side public names load on first use, so `drivee2e suite ...` and
@@ -13,7 +15,7 @@ from drivee2e_jax.scenario import load_suite  # noqa: E402
 _LAZY = {
     "Simulator": ("drivee2e_jax.sim", "Simulator"),
     "SimConfig": ("drivee2e_jax.sim", "SimConfig"),
-    "evaluate": ("drivee2e_jax.evaluation", "evaluate"),
+    "evaluate": ("drivee2e_jax.eval.closedloop", "evaluate"),
     "load_policy": ("drivee2e_jax.policy", "load_policy"),
     "metrics": ("drivee2e_jax.metrics", None),
     "enable_compile_cache": ("drivee2e_jax.compile_cache", "enable"),
@@ -22,7 +24,6 @@ _LAZY = {
 
 def __getattr__(name):
     if name in _LAZY:
-        import importlib
 
         mod, attr = _LAZY[name]
         m = importlib.import_module(mod)

@@ -17,6 +17,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from drivee2e_jax.files import cache_dir
+
 JAX_CACHE_ENV = "DRIVEE2E_JAX_CACHE"
 #: Programs that compile faster than this are not written to disk, s.
 MIN_COMPILE_S = 1.0
@@ -24,8 +26,6 @@ MIN_COMPILE_S = 1.0
 
 def compile_cache_dir() -> Path | None:
     """The folder of the persistent compilation cache, or None when disabled."""
-    from drivee2e_jax.scenario.suite import cache_dir
-
     value = os.environ.get(JAX_CACHE_ENV, "").strip()
     if value:
         return None if value.lower() in ("off", "0", "none", "false") else Path(value).expanduser()

@@ -15,9 +15,8 @@ import jax.numpy as jnp
 from flax import struct
 
 from drivee2e_jax import geometry
-from drivee2e_jax.metrics.criteria import CollisionClass
 from drivee2e_jax.replay import AgentStates
-from drivee2e_jax.types import Category, EgoState, MapData, Marking, SignalState
+from drivee2e_jax.types import Category, CollisionClass, EgoState, MapData, Marking, SignalState
 
 # Collision classes as CARLA's collision test names them.
 CLASS_WALKER = int(CollisionClass.PEDESTRIAN)

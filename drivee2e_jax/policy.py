@@ -19,6 +19,8 @@ A policy file (``--policy path/to/file.py``) defines either a module-level
 from __future__ import annotations
 
 import importlib.util
+import inspect
+import json
 import sys
 from pathlib import Path
 from typing import Any, Literal, Protocol, runtime_checkable
@@ -27,6 +29,11 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.types import Observation
 
 ActionType = Literal["controls", "waypoints"]
+
+#: Policies ``drivee2e bench`` runs when none is named.
+DEFAULT_POLICIES = ("log_replay", "expert", "stop")
+#: Policies in the repository's policies/ folder, accepted by name.
+REFERENCE_POLICIES = (*DEFAULT_POLICIES, "constant_velocity")
 
 
 @runtime_checkable
@@ -87,7 +94,6 @@ def load_policy(path: str | Path, **kwargs) -> Policy:
     except Exception as e:  # a user's file: report, don't crash
         raise DriveE2EError(f"{path}: importing the policy failed: {type(e).__name__}: {e}") from e
     if hasattr(module, "make_policy"):
-        import inspect
 
         try:
             inspect.signature(module.make_policy).bind(**kwargs)
@@ -106,3 +112,43 @@ def load_policy(path: str | Path, **kwargs) -> Policy:
     if pol.action_type not in ("controls", "waypoints"):
         raise DriveE2EError(f"{path}: action_type is {pol.action_type!r}, expected 'controls' or 'waypoints'")
     return pol
+
+
+def parse_policy_spec(spec: str) -> tuple[Path, dict, str]:
+    """``PATH_OR_NAME[:key=value,...]`` -> (policy file, ``make_policy`` kwargs,
+    result name). Values are JSON when they parse (numbers, true, lists), else
+    text; the key ``name`` renames the policy in the results instead.
+
+    Example: ``policies/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3``.
+    """
+    head, sep, tail = spec.partition(":")
+    kwargs: dict = {}
+    if sep:
+        for item in filter(None, tail.split(",")):
+            key, eq, value = item.partition("=")
+            if not eq or not key.strip().isidentifier():
+                raise DriveE2EError(f"--policy {spec}: expected PATH:key=value[,key=value...], got {item!r}")
+            try:
+                kwargs[key.strip()] = json.loads(value)
+            except ValueError:
+                kwargs[key.strip()] = value
+    name = kwargs.pop("name", "")
+    return resolve_policy_path(head), kwargs, str(name)
+
+
+def resolve_policy_path(spec: str) -> Path:
+    """A policy argument: an existing file, or a reference policy name."""
+    path = Path(spec)
+    if path.suffix == ".py" or path.exists():
+        if not path.is_file():
+            raise DriveE2EError(f"{spec}: policy file not found (expected a .py file or one of {', '.join(REFERENCE_POLICIES)})")
+        return path
+    ref = reference_policy_dir() / f"{spec}.py"
+    if ref.is_file():
+        return ref
+    raise DriveE2EError(f"--policy {spec}: not a file and not a reference policy (expected a .py path or one of {', '.join(REFERENCE_POLICIES)})")
+
+
+def reference_policy_dir() -> Path:
+    """The repository's ``policies/`` folder (next to the package)."""
+    return Path(__file__).resolve().parents[1] / "policies"

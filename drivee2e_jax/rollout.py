@@ -22,7 +22,8 @@ rendering and the policy entirely (``lax.cond`` on the scan index).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +31,7 @@ import numpy as np
 from flax import struct
 
 from drivee2e_jax.observe import sensors
-from drivee2e_jax.sim import Simulator, SimState, StepLog
+from drivee2e_jax.sim import SimState, Simulator
 from drivee2e_jax.types import Controls, Scenario, Waypoints
 
 

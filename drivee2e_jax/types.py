@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import enum
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
@@ -50,8 +51,22 @@ class Category(enum.IntEnum):
     CYCLIST = 7
 
     @classmethod
-    def parse(cls, name: str) -> "Category":
+    def parse(cls, name: str) -> Category:
         return cls[name.upper()]
+
+
+class CollisionClass(enum.IntEnum):
+    """How CARLA's CollisionTest classifies the other actor's ``type_id``.
+
+    The source tests ``static``/``traffic`` (and not ``sidewalk``) first, then
+    ``vehicle``, then ``walker``; anything else (e.g. ``static.sidewalk``) is
+    counted by the criterion but produces no penalty event (OTHER).
+    """
+
+    PEDESTRIAN = 0
+    VEHICLE = 1
+    LAYOUT = 2
+    OTHER = 3
 
 
 #: Categories that CARLA scores as ``collisions_vehicle`` (everything but walkers).
@@ -264,7 +279,7 @@ class Scenario:
     num_steps: Array
     index: Array
 
-    def validate(self) -> "Scenario":
+    def validate(self) -> Scenario:
         """Check that shape prefixes agree (batched or not); returns self.
 
         Raises ValueError naming the field whose shape disagrees.
@@ -301,14 +316,12 @@ class Scenario:
 
 def batch_size(tree) -> int:
     """Leading batch size of a batched pytree (first leaf's first axis)."""
-    import jax
 
     return int(jax.tree_util.tree_leaves(tree)[0].shape[0])
 
 
 def to_numpy(tree):
     """Host copy of a pytree (numpy leaves)."""
-    import jax
 
     return jax.tree_util.tree_map(np.asarray, tree)
 
@@ -393,7 +406,7 @@ class Privileged:
     log_next_xy: Array
     log_next_yaw: Array
     log_valid: Array
-    log_controls: "Controls"
+    log_controls: Controls
 
 
 @struct.dataclass

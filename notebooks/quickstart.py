@@ -88,8 +88,8 @@ print("expert mean speed per episode, m/s:", np.round(np.nanmean(speed, axis=1)[
 # %%
 import tempfile
 
-from drivee2e_jax.bench import BenchConfig, run_bench
-from drivee2e_jax.io.episodes import trace_episodes
+from drivee2e_jax.eval.bench import BenchConfig, run_bench
+from drivee2e_jax.eval.traces import trace_episodes
 from drivee2e_jax.viz.player import write_player
 
 out = Path(tempfile.mkdtemp()) / "results"

@@ -25,7 +25,7 @@ def pytest_configure(config):
     os.environ[compile_cache.JAX_CACHE_ENV] = str(path) if path is not None else "off"
 
 
-from drivee2e_jax.scenario.records import (
+from drivee2e_jax.records import (
     BoundaryRecord,
     LaneRecord,
     MapRecord,

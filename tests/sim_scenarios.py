@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivee2e_jax.scenario.pack import pack
-from drivee2e_jax.scenario.records import (
+from drivee2e_jax.records import (
     LaneRecord,
     MapRecord,
     ObstacleRecord,
@@ -19,6 +18,7 @@ from drivee2e_jax.scenario.records import (
     StopLineRecord,
     TrackRecord,
 )
+from drivee2e_jax.scenario.pack import pack
 
 DT = 0.1
 STEPS = 101  # 10 s

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import csv
 import json
-from pathlib import Path
 
 import pytest
-
 import sim_scenarios as ss
+
 from drivee2e_jax.cli import main
-from drivee2e_jax.scenario.records import SuiteRecord
+from drivee2e_jax.records import SuiteRecord
 from drivee2e_jax.scenario.schema import write_suite
 
 REQUIRED = ("policy", "scenario_id", "split", "intersection_id", "behavior", "route_completion", "infraction_score",
@@ -117,9 +116,8 @@ def test_open_loop_columns_fine_grained_metrics_and_report(suite_dir, tmp_path, 
 
 
 def test_policy_spec_with_make_policy_arguments_and_a_result_name(tmp_path):
-    from drivee2e_jax.cli.bench import parse_policy_spec
     from drivee2e_jax.errors import DriveE2EError
-    from drivee2e_jax.policy import load_policy
+    from drivee2e_jax.policy import load_policy, parse_policy_spec
 
     f = tmp_path / "p.py"
     f.write_text(

@@ -15,8 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivee2e_jax import distributed
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.eval import distributed
 
 
 @settings(deadline=None, max_examples=50)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import conftest
+
 from drivee2e_jax.scenario.schema import write_suite
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,7 +78,7 @@ def test_trend_notebook_runs(tmp_path):
 
 def test_public_evaluate_stays_a_function_after_its_module_is_imported():
     import drivee2e_jax as de
-    import drivee2e_jax.evaluation  # noqa: F401  (a submodule import must not shadow de.evaluate)
+    import drivee2e_jax.eval.closedloop  # noqa: F401  (a submodule import must not shadow de.evaluate)
 
     assert callable(de.evaluate)
     assert de.evaluate.__name__ == "evaluate"

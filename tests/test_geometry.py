@@ -22,7 +22,6 @@ from shapely.geometry import LineString, Point, Polygon
 from drivee2e_jax import geometry as geo
 
 
-
 def f32(lo, hi):
     """float32-representable floats in [lo, hi] (bounds rounded to float32)."""
     return st.floats(float(np.float32(lo)), float(np.float32(hi)), width=32)

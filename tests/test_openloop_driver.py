@@ -1,4 +1,4 @@
-"""The open-loop driver (``drivee2e_jax.openloop``) and the constant-velocity
+"""The open-loop driver (``drivee2e_jax.eval.openloop``) and the constant-velocity
 baseline on hand-built scenarios (``sim_scenarios``): straight 10 m/s logs.
 
 One compiled program for the module: the policy under test is the
@@ -15,11 +15,11 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 import sim_scenarios as ss
+
 from drivee2e_jax import controller as ctl
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.openloop import evaluate_openloop, resample_waypoints
+from drivee2e_jax.eval.openloop import evaluate_openloop, resample_waypoints
 from drivee2e_jax.policy import StatelessPolicy, load_policy
 from drivee2e_jax.types import Waypoints
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivee2e_jax.bench import BenchConfig, run_bench
-from drivee2e_jax.io import episodes
+from drivee2e_jax.eval import traces as episodes
+from drivee2e_jax.eval.bench import BenchConfig, run_bench
 
 # A recording policy: drives straight on at a fixed throttle; its recurrent
 # state is (the number of calls, every packed BEV it received in call order).
@@ -92,7 +92,7 @@ def _seen(pol_file: Path, suite_dir: Path, kind: str) -> np.ndarray:
     episode ends its state is frozen, so later rows repeat the last one)."""
     import jax
 
-    from drivee2e_jax.evaluation import device_batch, init_params, with_policy_sensors
+    from drivee2e_jax.eval.closedloop import device_batch, init_params, with_policy_sensors
     from drivee2e_jax.observe import sensors
     from drivee2e_jax.policy import load_policy
     from drivee2e_jax.rollout import Rollout

@@ -11,9 +11,10 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from drivee2e_jax.bench import BEHAVIOR_ORDER, summarize  # noqa: E402
-from drivee2e_jax.io import report  # noqa: E402
-from drivee2e_jax.io.results import BASE_COLUMNS, atomic_write_json, atomic_write_text, rows_to_csv  # noqa: E402
+from drivee2e_jax.eval import report  # noqa: E402
+from drivee2e_jax.eval.results import BASE_COLUMNS, rows_to_csv  # noqa: E402
+from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, summarize  # noqa: E402
+from drivee2e_jax.files import atomic_write_json, atomic_write_text
 
 #: scenarios.csv header of a real run (twin15 val), plus a column no code knows about.
 HEADER = (

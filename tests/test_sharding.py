@@ -23,7 +23,7 @@ import json, sys
 import jax, numpy as np
 from drivee2e_jax import compile_cache
 compile_cache.enable()  # the folder the test session pinned in $DRIVEE2E_JAX_CACHE
-from drivee2e_jax.evaluation import evaluate
+from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.observe.sensors import SensorConfig, build_assets
 from drivee2e_jax.policy import load_policy
 from drivee2e_jax.rollout import shard_rollout_inputs

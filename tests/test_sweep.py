@@ -140,7 +140,7 @@ def test_grid_expansion_every_combination_with_readable_ids():
 
 
 def test_batched_repetitions_equal_separate_evaluate_calls(tiny_config):
-    from drivee2e_jax.evaluation import evaluate
+    from drivee2e_jax.eval.closedloop import evaluate
     from drivee2e_jax.observe.vector import ObsConfig
     from drivee2e_jax.policy import load_policy
     from drivee2e_jax.rollout import ControlTiming

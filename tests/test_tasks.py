@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario import pack
-from drivee2e_jax.tasks import (
+from drivee2e_jax.eval.tasks import (
     LANE_DEVIATION_MAX_M,
     SPEED_BAND,
     TASKS,
@@ -19,6 +18,7 @@ from drivee2e_jax.tasks import (
     get_task,
     logged_front_distance,
 )
+from drivee2e_jax.scenario import pack
 from drivee2e_jax.types import SignalState
 
 
@@ -91,8 +91,8 @@ def test_unknown_task_and_empty_selection_are_one_line_errors(packed):
 
 
 def test_bench_with_a_task_writes_task_success_and_abilities(tiny_suite_dir, tmp_path):
-    from drivee2e_jax.bench import BenchConfig, run_bench
-    from drivee2e_jax.cli.bench import resolve_policy_path
+    from drivee2e_jax.eval.bench import BenchConfig, run_bench
+    from drivee2e_jax.policy import resolve_policy_path
 
     out = tmp_path / "run"
     cfg = BenchConfig(suite=str(tiny_suite_dir), split="train", policies=(str(resolve_policy_path("log_replay")),),
@@ -109,7 +109,7 @@ def test_bench_with_a_task_writes_task_success_and_abilities(tiny_suite_dir, tmp
 
 
 def test_ability_scores_pool_the_behaviour_groups_of_each_ability():
-    from drivee2e_jax.bench import ability_scores
+    from drivee2e_jax.eval.summary import ability_scores
 
     rows = [{"behavior": b, "success": s} for b, s in
             (("COV", True), ("LFT", False), ("RT", True), ("IPC", True), ("STP", False), ("UT", True))]

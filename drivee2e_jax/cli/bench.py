@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 EPILOG = """\
@@ -24,7 +23,7 @@ conventions) and the open-loop collision rate for waypoint policies.
 every scenario), driving_in_traffic (scenarios with a logged vehicle ahead;
 success also needs never < 6 m behind it), lane_following (straight routes,
 other agents and signals removed; success also needs lane deviation <= 0.5 m
-and average speed 0.7-1.1 x the speed limit); see drivee2e_jax/tasks.py.
+and average speed 0.7-1.1 x the speed limit); see drivee2e_jax/eval/tasks.py.
 --variant re-evaluates the split with the agents never visible from the ego's
 cameras along the logged run removed: visible_vehicles (vehicles only) or
 visible_all (every category); complete (default) = as recorded. The masks are
@@ -32,10 +31,6 @@ computed once per split and cached (scenario/variants.py).
 Results go to results/<suite>-<split>[-<task>][-<variant>]/ unless --out is given; a rerun resumes
 (finished policies are skipped) and never overwrites without --force.
 """
-
-DEFAULT_POLICIES = ("log_replay", "expert", "stop")
-#: Policies in the repository's policies/ folder, accepted by name.
-REFERENCE_POLICIES = (*DEFAULT_POLICIES, "constant_velocity")
 
 
 def add_parser(subparsers) -> None:
@@ -97,56 +92,9 @@ def add_parser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def parse_policy_spec(spec: str) -> tuple[Path, dict, str]:
-    """``PATH_OR_NAME[:key=value,...]`` -> (policy file, ``make_policy`` kwargs,
-    result name). Values are JSON when they parse (numbers, true, lists), else
-    text; the key ``name`` renames the policy in the results instead.
-
-    Example: ``policies/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3``.
-    """
-    import json
-
-    from drivee2e_jax.errors import DriveE2EError
-
-    head, sep, tail = spec.partition(":")
-    kwargs: dict = {}
-    if sep:
-        for item in filter(None, tail.split(",")):
-            key, eq, value = item.partition("=")
-            if not eq or not key.strip().isidentifier():
-                raise DriveE2EError(f"--policy {spec}: expected PATH:key=value[,key=value...], got {item!r}")
-            try:
-                kwargs[key.strip()] = json.loads(value)
-            except ValueError:
-                kwargs[key.strip()] = value
-    name = kwargs.pop("name", "")
-    return resolve_policy_path(head), kwargs, str(name)
-
-
-def resolve_policy_path(spec: str) -> Path:
-    """A policy argument: an existing file, or a reference policy name."""
-    from drivee2e_jax.errors import DriveE2EError
-
-    path = Path(spec)
-    if path.suffix == ".py" or path.exists():
-        if not path.is_file():
-            raise DriveE2EError(f"{spec}: policy file not found (expected a .py file or one of {', '.join(REFERENCE_POLICIES)})")
-        return path
-    ref = reference_policy_dir() / f"{spec}.py"
-    if ref.is_file():
-        return ref
-    raise DriveE2EError(f"--policy {spec}: not a file and not a reference policy (expected a .py path or one of {', '.join(REFERENCE_POLICIES)})")
-
-
-def reference_policy_dir() -> Path:
-    """The repository's ``policies/`` folder (next to the package)."""
-    import drivee2e_jax
-
-    return Path(drivee2e_jax.__file__).resolve().parents[1] / "policies"
-
-
 def run(args) -> int:
-    from drivee2e_jax.bench import BenchConfig, run_bench
+    from drivee2e_jax.eval.bench import BenchConfig, run_bench
+    from drivee2e_jax.policy import DEFAULT_POLICIES, parse_policy_spec
 
     specs = [parse_policy_spec(p) for p in (args.policies or DEFAULT_POLICIES)]
     cfg = BenchConfig(

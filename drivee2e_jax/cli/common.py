@@ -18,7 +18,8 @@ from __future__ import annotations
 import argparse
 import sys
 import textwrap
-from typing import Any, Callable, Iterable
+from collections.abc import Callable
+from typing import Any
 
 from drivee2e_jax.errors import DriveE2EError
 
@@ -98,13 +99,3 @@ def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespa
         except OSError:
             pass
         return EXIT_OK
-
-
-def progress(iterable: Iterable | None = None, **kwargs: Any):
-    """A tqdm progress bar on stderr, hidden when stderr is not a terminal."""
-    from tqdm import tqdm
-
-    kwargs.setdefault("disable", None)
-    kwargs.setdefault("file", sys.stderr)
-    kwargs.setdefault("dynamic_ncols", True)
-    return tqdm(iterable, **kwargs)

@@ -52,7 +52,7 @@ def add_parser(subparsers) -> None:
 
 
 def run_build(args) -> int:
-    from drivee2e_jax.cli.common import progress
+    from drivee2e_jax.progress import progress
     from drivee2e_jax.train.dataset import DatasetConfig, build_dataset
 
     sensors = tuple(s.strip() for s in args.sensors.split(",") if s.strip())
@@ -81,8 +81,8 @@ def run_info(args) -> int:
 def _summary(m: dict, path) -> str:
     leaves = ", ".join(f"{k}{tuple(v['shape'])}" for k, v in m["leaves"].items() if k.startswith("obs.") and
                        k.split(".")[1] in ("bev", "lidar", "history", "agents", "lanes"))
-    from drivee2e_jax.models.base import bev_label
-    from drivee2e_jax.train.dataset import bev_of_manifest
+    from drivee2e_jax.models.checkpoint import bev_of_manifest
+    from drivee2e_jax.observe.bev import bev_label
 
     bev = bev_of_manifest(m)
     return (f"{path}: {m['suite']} v{m['suite_version']} {m['split']}, {m['num_scenarios']} scenarios, "

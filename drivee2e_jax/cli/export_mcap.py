@@ -48,7 +48,7 @@ def run(args) -> int:
     if out.exists() and out.is_dir():
         raise DriveE2EError(f"{out}: is a folder; expected a file name ending in .mcap")
 
-    from drivee2e_jax.io.episodes import trace_episodes
+    from drivee2e_jax.eval.traces import trace_episodes
     from drivee2e_jax.io.mcap_export import topics, write_mcap
 
     traces = trace_episodes(args.results, args.policy, args.scenarios, sensors=() if args.no_sensors else ("bev", "lidar"))

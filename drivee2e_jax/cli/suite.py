@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 from drivee2e_jax.cli import common
+from drivee2e_jax.progress import progress
 
 SUITE_EPILOG = """\
 examples:
@@ -256,7 +257,7 @@ def _load_each(importers, fmt: str, paths: list[Path], options) -> list:
 
     results = []
     count = 0
-    bar = common.progress(paths, desc=f"importing {fmt}", unit="input", disable=None if len(paths) > 1 else True)
+    bar = progress(paths, desc=f"importing {fmt}", unit="input", disable=None if len(paths) > 1 else True)
     for path in bar:
         if options.max_scenarios is not None and count >= options.max_scenarios:
             break

@@ -55,7 +55,7 @@ def run(args) -> int:
     if args.limit is not None and args.limit < 1:
         raise DriveE2EError(f"--limit {args.limit}: expected a positive number of scenarios")
 
-    from drivee2e_jax.io.episodes import trace_episodes
+    from drivee2e_jax.eval.traces import trace_episodes
     from drivee2e_jax.viz.player import write_player
 
     traces = trace_episodes(results, policy=args.policy, scenario_ids=args.scenario,

@@ -36,12 +36,13 @@ from __future__ import annotations
 import base64
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from drivee2e_jax.io.results import atomic_write
+from drivee2e_jax.eval.traces import bev_rgb, png_bytes
+from drivee2e_jax.files import atomic_write
 
 #: Gap between consecutive episodes on the file's timeline, ns.
 EPISODE_GAP_NS = 1_000_000_000
@@ -343,7 +344,6 @@ def transform(trace, k: int, ns: int) -> dict:
 
 
 def bev_image(trace, k: int, ns: int) -> dict:
-    from drivee2e_jax.io.episodes import bev_rgb, png_bytes
 
     return {"timestamp": _stamp(ns), "frame_id": "ego", "format": "png",
             "data": base64.b64encode(png_bytes(bev_rgb(trace.bev, k))).decode("ascii")}

@@ -11,13 +11,12 @@
   ``behavior`` (Behavior Metrics, paper and tool-code definitions) and
   ``comfort`` (Bench2Drive smoothness).
 * ``openloop``: L2 and collision conventions of UniAD / ST-P3 / VAD (the
-  driver that runs a policy on the demonstrations is ``drivee2e_jax.openloop``).
+  driver that runs a policy on the demonstrations is ``drivee2e_jax.eval.openloop``).
 
 Definitions: ``shared/reference/METRICS.md`` sections 1-5.
 """
 
 from drivee2e_jax.metrics import aggregate, criteria, driving_score
-from drivee2e_jax.metrics.criteria import CollisionClass
 from drivee2e_jax.metrics.driving_score import (
     INFRACTION_KEYS,
     PENALTIES,
@@ -29,6 +28,7 @@ from drivee2e_jax.metrics.driving_score import (
     route_score,
     status_name,
 )
+from drivee2e_jax.types import CollisionClass
 
 __all__ = [
     "aggregate",

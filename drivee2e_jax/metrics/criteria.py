@@ -33,13 +33,11 @@ intersections are all signalised, so the criterion could never fire. A
 
 from __future__ import annotations
 
-import enum
-
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from drivee2e_jax.types import Route
+from drivee2e_jax.types import CollisionClass, Route
 
 Array = jnp.ndarray
 
@@ -60,20 +58,6 @@ TIMEOUT_SPEED_FRACTION = 0.1  # RouteTimeoutBehavior.TIMEOUT_ROUTE_PERC / 100
 TIMEOUT_WINDOW = 3  # RouteTimeoutBehavior._wsize: checks i .. i + 3
 MIN_SPEED_WINDOW = 2  # MinimumSpeedRouteTest.WINDOWS_SIZE
 MIN_SPEED_FINAL_PROGRESS = 0.95  # terminate(): last checkpoint if progress > 95 %
-
-
-class CollisionClass(enum.IntEnum):
-    """How CARLA's CollisionTest classifies the other actor's ``type_id``.
-
-    The source tests ``static``/``traffic`` (and not ``sidewalk``) first, then
-    ``vehicle``, then ``walker``; anything else (e.g. ``static.sidewalk``) is
-    counted by the criterion but produces no penalty event (OTHER).
-    """
-
-    PEDESTRIAN = 0
-    VEHICLE = 1
-    LAYOUT = 2
-    OTHER = 3
 
 
 # ---------------------------------------------------------------------------

@@ -188,7 +188,7 @@ class ScoreConfig:
 
     # -- presets -------------------------------------------------------------
     @classmethod
-    def lb20(cls) -> "ScoreConfig":
+    def lb20(cls) -> ScoreConfig:
         """CARLA Leaderboard 2.0.
 
         Source: ``statistics_manager.py`` + ``route_scenario.py``: every
@@ -199,7 +199,7 @@ class ScoreConfig:
         return cls(name="lb20")
 
     @classmethod
-    def lb21(cls) -> "ScoreConfig":
+    def lb21(cls) -> ScoreConfig:
         """CARLA Leaderboard 2.1 (branch ``leaderboard-2.1``).
 
         Source: the LB 2.0 criteria with IS = prod(1 - p/100) / (1 + sum w).
@@ -208,7 +208,7 @@ class ScoreConfig:
         return cls(name="lb21", formula="lb21")
 
     @classmethod
-    def b2d(cls) -> "ScoreConfig":
+    def b2d(cls) -> ScoreConfig:
         """Bench2Drive 0.0.4.
 
         Source: LB 2.0 fork; MinSpeed with 20 checkpoints, every checkpoint
@@ -228,7 +228,7 @@ class ScoreConfig:
         )
 
     @classmethod
-    def drivee2e(cls) -> "ScoreConfig":
+    def drivee2e(cls) -> ScoreConfig:
         """DriveE2E (the source benchmark's code, blindpub/DriveE2E).
 
         Source: LB 2.0 scoring (min speed penalised, events only < 100 %,
@@ -253,7 +253,7 @@ class ScoreConfig:
         )
 
     @classmethod
-    def preset(cls, name: str) -> "ScoreConfig":
+    def preset(cls, name: str) -> ScoreConfig:
         """A preset by name: lb20, lb21, b2d, drivee2e."""
         try:
             return {"lb20": cls.lb20, "lb21": cls.lb21, "b2d": cls.b2d, "drivee2e": cls.drivee2e}[name]()
@@ -302,7 +302,7 @@ class RouteOutcome:
     tick_runtime: Array
 
     @classmethod
-    def empty(cls, checkpoints: int, dtype=jnp.float32) -> "RouteOutcome":
+    def empty(cls, checkpoints: int, dtype=jnp.float32) -> RouteOutcome:
         """An outcome with nothing recorded (RC 0); fill it with ``replace``."""
         i = jnp.zeros((), jnp.int32)
         f = jnp.zeros((), dtype)

@@ -14,7 +14,7 @@ from flax import struct
 
 from drivee2e_jax.metrics import criteria as cr
 from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS, RouteOutcome, ScoreConfig, route_score, status_name
-from drivee2e_jax.types import Route
+from drivee2e_jax.types import Category, CollisionClass, Route
 
 #: Default lane speed limit for the route-timeout budget, m/s (50 km/h).
 SPEED_LIMIT = 13.9
@@ -138,7 +138,6 @@ def progress_arc(carry: EpisodeCarry, route: Route):
 
 def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt, cfg: ScoreConfig):
     """One tick of every enabled criterion. Returns (carry, StepEvents)."""
-    from drivee2e_jax.types import Category
 
     rc, completed = cr.route_completion_update(carry.rc, route, ego.xy, cfg.rc_threshold, cfg.rc_distance_m)
     in_route, deviated = cr.in_route_update(carry.in_route, route, ego.xy)
@@ -146,7 +145,7 @@ def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt,
     # Contacts: the replayed agent first (ids >= 1), then static layout (id 0).
     hit = jnp.stack([facts.agent_hit, facts.layout_hit])
     ids = jnp.stack([facts.agent_hit_id + 1, jnp.zeros((), jnp.int32)]).astype(jnp.int32)
-    cls = jnp.stack([facts.agent_hit_class, jnp.asarray(cr.CollisionClass.LAYOUT, jnp.int32)])
+    cls = jnp.stack([facts.agent_hit_class, jnp.asarray(CollisionClass.LAYOUT, jnp.int32)])
     collision, tick = cr.collision_update(carry.collision, hit, ids, cls, ego.xy, ego.speed, ego.t)
     blocked, is_blocked = cr.blocked_update(carry.blocked, ego.speed, ego.t, cfg.blocked_max_time_s)
     timeout, timed_out = cr.route_timeout_update(carry.timeout, route, ego.xy, jnp.asarray(SPEED_LIMIT), ego.t)
@@ -175,10 +174,10 @@ def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt,
         timeout=timeout,
         min_speed=min_speed,
         red=red,
-        collisions_pedestrian=carry.collisions_pedestrian + (ev_cls == cr.CollisionClass.PEDESTRIAN),
-        collisions_vehicle=carry.collisions_vehicle + (ev_cls == cr.CollisionClass.VEHICLE),
-        collisions_layout=carry.collisions_layout + (ev_cls == cr.CollisionClass.LAYOUT),
-        collisions_two_wheeler=carry.collisions_two_wheeler + ((ev_cls == cr.CollisionClass.VEHICLE) & two_wheeler),
+        collisions_pedestrian=carry.collisions_pedestrian + (ev_cls == CollisionClass.PEDESTRIAN),
+        collisions_vehicle=carry.collisions_vehicle + (ev_cls == CollisionClass.VEHICLE),
+        collisions_layout=carry.collisions_layout + (ev_cls == CollisionClass.LAYOUT),
+        collisions_two_wheeler=carry.collisions_two_wheeler + ((ev_cls == CollisionClass.VEHICLE) & two_wheeler),
         red_light=carry.red_light + red_event.astype(jnp.int32),
         invalid_action=carry.invalid_action + jnp.asarray(invalid, jnp.int32),
         done=carry.done | ends,
@@ -290,7 +289,6 @@ def extract_events(log) -> list[dict]:
     and type-specific fields (``other_track_id``, ``other_category``,
     ``stop_line``).
     """
-    from drivee2e_jax.types import Category
 
     e = log.events
     out = []

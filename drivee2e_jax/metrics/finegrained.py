@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
+import jax
 import numpy as np
 
 from drivee2e_jax.metrics import behavior, comfort
@@ -216,7 +217,6 @@ def smoothness_pct(yaw, speed, n_active, dt_s: float, chunk: int = comfort.B2D_C
 
 def _map(fn, tree):
     """``fn`` on every array leaf of a log (namespace / struct dataclass)."""
-    import jax
 
     return jax.tree_util.tree_map(fn, tree)
 

@@ -15,7 +15,7 @@ Output: K = 6 waypoints 0.5 s apart as cumulative per-step displacements
 (``base.waypoint_l1``); metric: mean L2.
 
 Size and cost (default hidden (128, 128); measured with
-``python -m drivee2e_jax.models.ad_mlp data/demos-train`` on this shared
+``python experiments/perf/ad_mlp_cost.py data/demos-train`` on this shared
 2-core CPU under load ~12, so noisy): 26,892 parameters; a jitted ``apply``
 of one sample 0.42 ms (mostly dispatch), a vmapped batch of 256 1.26 ms
 (~5 us per sample). Inside the rollout it is negligible next to the simulator.
@@ -91,25 +91,3 @@ class ADMLP:
 
 def make_model(hidden=(128, 128), num_waypoints: int = 6, waypoint_dt: float = 0.5) -> ADMLP:
     return ADMLP(hidden=tuple(int(h) for h in hidden), num_waypoints=int(num_waypoints), waypoint_dt=float(waypoint_dt))
-
-
-if __name__ == "__main__":  # size and cost, for the docstring: python -m drivee2e_jax.models.ad_mlp [DATA]
-    import sys
-    import time
-
-    from drivee2e_jax.train.dataset import DemoDataset
-
-    model = make_model()
-    obs = jax.tree_util.tree_map(jnp.asarray, DemoDataset(sys.argv[1] if len(sys.argv) > 1 else "data/demos-train").first().obs)
-    params = model.init(jax.random.PRNGKey(0), obs)
-    n = sum(x.size for x in jax.tree_util.tree_leaves(params))
-    one = jax.jit(model.apply)
-    many = jax.jit(jax.vmap(model.apply, in_axes=(None, 0)))
-    batch = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (256,) + a.shape), obs)
-    for fn, arg, label in ((one, obs, "1 sample"), (many, batch, "batch of 256")):
-        jax.block_until_ready(fn(params, arg))
-        t0 = time.perf_counter()
-        for _ in range(200):
-            jax.block_until_ready(fn(params, arg))
-        print(f"{label}: {(time.perf_counter() - t0) / 200 * 1e3:.3f} ms")
-    print(f"parameters: {n}")

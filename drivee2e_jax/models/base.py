@@ -30,6 +30,12 @@ from flax import struct
 
 from drivee2e_jax import controller as ctl
 from drivee2e_jax import geometry, replay
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.models import checkpoint as ckpt
+from drivee2e_jax.models.checkpoint import load_params, training_bev
+from drivee2e_jax.models.registry import get_model
+from drivee2e_jax.observe.bev import check_bev
+from drivee2e_jax.observe.sensors import SensorConfig
 from drivee2e_jax.types import Controls, EgoState, Observation, Scenario, Waypoints
 
 #: Past ego samples the history holds, and their spacing in s (4 s of past).
@@ -363,7 +369,6 @@ def as_policy(model: Model, params_or_checkpoint, mode: Mode = "traj", **kwargs)
     """
     params = params_or_checkpoint
     if isinstance(params, (str, bytes)) or hasattr(params, "__fspath__"):
-        from drivee2e_jax.train.checkpoint import load_params
 
         params = load_params(params_or_checkpoint)
     return ModelPolicy(model, params, mode, **kwargs)
@@ -385,13 +390,9 @@ def policy_from_checkpoint(model_name: str, checkpoint=None, mode: Mode = "traj"
     Raises DriveE2EError (one line) on a checkpoint of another model or
     training data whose BEV the model cannot read.
     """
-    from drivee2e_jax.errors import DriveE2EError
-    from drivee2e_jax.models import get_model
 
     params, bev = None, None
     if checkpoint is not None:
-        from drivee2e_jax.train import checkpoint as ckpt
-        from drivee2e_jax.train.dataset import training_bev
 
         path = ckpt.resolve(checkpoint)
         meta = ckpt.read_meta(path)
@@ -403,45 +404,7 @@ def policy_from_checkpoint(model_name: str, checkpoint=None, mode: Mode = "traj"
     model = get_model(model_name, **config)
     sensor_config = None
     if bev is not None:
-        from drivee2e_jax.observe.sensors import SensorConfig
 
         check_bev(bev, model, f"{checkpoint} (its training data)")
         sensor_config = SensorConfig(bev=bev)
     return ModelPolicy(model, params, mode, name=name, sensor_config=sensor_config)
-
-
-# --------------------------------------------------------------------------
-# BEV sizes
-# --------------------------------------------------------------------------
-
-
-def bev_label(bev) -> str:
-    """"HxW at R m/px" of an ``observe.bev.BevConfig``."""
-    return f"{bev.height}x{bev.width} at {bev.resolution:g} m/px"
-
-
-def bev_fits(rendered, wanted) -> bool:
-    """Whether a model sized for the BEV ``wanted`` reads ``rendered``: the
-    same BEV, or an integer multiple of its pixels covering the same ground
-    (same extent, ego offset and channels), which it max-pools."""
-    fh, fw = rendered.height // wanted.height, rendered.width // wanted.width
-    return (fh >= 1 and fw >= 1 and rendered.height == fh * wanted.height and rendered.width == fw * wanted.width
-            and abs(rendered.resolution * fh - wanted.resolution) <= 1e-6 * wanted.resolution
-            and abs(rendered.resolution * fw - wanted.resolution) <= 1e-6 * wanted.resolution
-            and rendered.ego_from_bottom == wanted.ego_from_bottom
-            and tuple(rendered.channels) == tuple(wanted.channels))
-
-
-def check_bev(rendered, model, source: str) -> None:
-    """One-line DriveE2EError unless ``model`` (sized for ``model.bev``) can
-    read the BEV ``rendered`` (``bev_fits``); models without a ``bev``
-    attribute and ``rendered=None`` pass. ``source`` names where it came from."""
-    wanted = getattr(model, "bev", None)
-    if rendered is None or wanted is None or bev_fits(rendered, wanted):
-        return
-    from drivee2e_jax.errors import DriveE2EError
-
-    raise DriveE2EError(
-        f"{source}: BEV {bev_label(rendered)} does not fit model {model.name!r}, sized for {bev_label(wanted)} "
-        f"(render that, or an integer multiple of it covering the same "
-        f"{wanted.height * wanted.resolution:g} x {wanted.width * wanted.resolution:g} m)")

@@ -32,14 +32,22 @@ Size and cost: see ``docs/baselines.md`` (``python -m drivee2e_jax.models.tcp``)
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import json
+import time
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
 from drivee2e_jax.models import base
+from drivee2e_jax.models.registry import get_model
+from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.bev import BevConfig, unpack_bits
+from drivee2e_jax.observe.sensors import SensorConfig
+from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Controls
 
 #: Command one-hot width: ``types.Command`` -1 (VOID) .. 6.
@@ -150,7 +158,6 @@ class TCP:
     @property
     def sensor_config(self):
         """``observe.sensors.SensorConfig`` rendering the BEV this model is sized for."""
-        from drivee2e_jax.observe.sensors import SensorConfig
 
         return SensorConfig(bev=self.bev)
 
@@ -188,7 +195,6 @@ def make_model(bev_size: int = 64, bev_resolution: float = 1.0, conv_features=(1
 def inference_cost(model, obs, batch: int = 200, repeats: int = 20) -> dict:
     """Parameter count and per-sample cost of ``jit(vmap(model.apply))`` over
     ``batch`` copies of ``obs`` (host timing: wall and process CPU time, us)."""
-    import time
 
     params = jax.jit(model.init)(jax.random.PRNGKey(0), obs)
     many = jax.jit(jax.vmap(model.apply, in_axes=(None, 0)))
@@ -206,9 +212,6 @@ def inference_cost(model, obs, batch: int = 200, repeats: int = 20) -> dict:
 def example_observation(sensor_config=None, suite: str = "scenarios/examples/tiny"):
     """A ``HistoryObservation`` at the reset of ``suite``'s first scenario,
     with the sensors of ``sensor_config`` (host helper for measurements)."""
-    from drivee2e_jax.observe import sensors
-    from drivee2e_jax.scenario import load_suite
-    from drivee2e_jax.sim import Simulator, SimConfig
 
     sensor_config = sensor_config or sensors.SensorConfig()
     s = load_suite(suite)
@@ -223,11 +226,6 @@ def example_observation(sensor_config=None, suite: str = "scenarios/examples/tin
 def main(argv=None) -> None:
     """``python -m drivee2e_jax.models.tcp [--bev-size 64 128] [--model tcp vector_transformer]``:
     parameters and inference cost per sample (JSON lines)."""
-    import argparse
-    import json
-
-    from drivee2e_jax.models import get_model
-    from drivee2e_jax.observe.sensors import SensorConfig
 
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--model", nargs="+", default=["tcp", "vector_transformer"])

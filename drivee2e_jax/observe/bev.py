@@ -78,6 +78,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from drivee2e_jax import geometry
+from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.observe.raster import Layer, RasterTable
 from drivee2e_jax.observe.xla_cpu import materialize
 from drivee2e_jax.types import Category, SignalState
@@ -630,3 +631,38 @@ def render_bev(*, ego_xy: Array, ego_yaw: Array, ego_lw: Array, agents_xy: Array
                  "history_xy", "history_yaw", "history_valid")
         return unpack_bits(render_bev_packed(**dict(zip(names, args))), len(cfg.channel_names))
     return jnp.stack([p.astype(jnp.float32) for p in _planes(*args)], axis=-1)
+
+
+# --------------------------------------------------------------------------
+# BEV sizes
+# --------------------------------------------------------------------------
+
+
+def bev_label(bev) -> str:
+    """"HxW at R m/px" of an ``observe.bev.BevConfig``."""
+    return f"{bev.height}x{bev.width} at {bev.resolution:g} m/px"
+
+
+def bev_fits(rendered, wanted) -> bool:
+    """Whether a model sized for the BEV ``wanted`` reads ``rendered``: the
+    same BEV, or an integer multiple of its pixels covering the same ground
+    (same extent, ego offset and channels), which it max-pools."""
+    fh, fw = rendered.height // wanted.height, rendered.width // wanted.width
+    return (fh >= 1 and fw >= 1 and rendered.height == fh * wanted.height and rendered.width == fw * wanted.width
+            and abs(rendered.resolution * fh - wanted.resolution) <= 1e-6 * wanted.resolution
+            and abs(rendered.resolution * fw - wanted.resolution) <= 1e-6 * wanted.resolution
+            and rendered.ego_from_bottom == wanted.ego_from_bottom
+            and tuple(rendered.channels) == tuple(wanted.channels))
+
+
+def check_bev(rendered, model, source: str) -> None:
+    """One-line DriveE2EError unless ``model`` (sized for ``model.bev``) can
+    read the BEV ``rendered`` (``bev_fits``); models without a ``bev``
+    attribute and ``rendered=None`` pass. ``source`` names where it came from."""
+    wanted = getattr(model, "bev", None)
+    if rendered is None or wanted is None or bev_fits(rendered, wanted):
+        return
+    raise DriveE2EError(
+        f"{source}: BEV {bev_label(rendered)} does not fit model {model.name!r}, sized for {bev_label(wanted)} "
+        f"(render that, or an integer multiple of it covering the same "
+        f"{wanted.height * wanted.resolution:g} x {wanted.width * wanted.resolution:g} m)")

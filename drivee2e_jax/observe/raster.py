@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import shapely
@@ -41,7 +41,7 @@ from flax import struct
 from shapely.geometry import LineString, Polygon
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.records import MapRecord
+from drivee2e_jax.records import MapRecord
 
 
 class Layer(enum.IntEnum):

@@ -25,7 +25,7 @@ batch (broadcast under ``vmap``), never copied per scenario.
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from collections.abc import Sequence
 
 import jax.numpy as jnp
 import numpy as np
@@ -34,7 +34,7 @@ from flax import struct
 from drivee2e_jax.observe import bev as bev_mod
 from drivee2e_jax.observe import lidar as lidar_mod
 from drivee2e_jax.observe import raycast
-from drivee2e_jax.observe.raster import RasterTable
+from drivee2e_jax.observe.raster import RasterTable, rasterize_maps
 
 #: Sensor names a policy may list in ``required_sensors``.
 SENSORS = ("bev", "lidar")
@@ -67,7 +67,7 @@ class SensorConfig:
         return tuple(n for n in SENSORS if getattr(self, n) is not None)
 
     @classmethod
-    def for_policy(cls, required: Sequence[str], base: "SensorConfig | None" = None) -> "SensorConfig":
+    def for_policy(cls, required: Sequence[str], base: SensorConfig | None = None) -> SensorConfig:
         """``base`` with every sensor in ``required`` on (default sizes) and
         every other one off. Raises ValueError naming an unknown sensor."""
         base = base or cls()
@@ -104,7 +104,6 @@ def build_assets(packed, config: SensorConfig, maps) -> SensorAssets | None:
     """
     if config.bev is None:
         return None
-    from drivee2e_jax.observe.raster import rasterize_maps
 
     used = sorted({str(m) for m in packed.meta.map_id})
     table = rasterize_maps({k: maps[k] for k in used}, resolution=config.raster_resolution)

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from drivee2e_jax.observe import raycast
 from drivee2e_jax.observe.lidar import LidarScan
 from drivee2e_jax.observe.radar import RadarReturns
-from drivee2e_jax.scenario.records import WEATHERS
+from drivee2e_jax.records import WEATHERS
 
 Array = jnp.ndarray
 

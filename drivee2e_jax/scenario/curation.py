@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivee2e_jax.scenario.records import MapRecord, RouteRecord, ScenarioRecord, SuiteRecord, TrackRecord
+from drivee2e_jax.records import MapRecord, RouteRecord, ScenarioRecord, SuiteRecord, TrackRecord
 
 __all__ = [
     "Finding", "BOUNDS", "MIN_ROUTE_LENGTH_M", "route_lane_match", "route_problems", "check_completeness",

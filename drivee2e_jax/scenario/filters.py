@@ -27,15 +27,16 @@ records with the same sizes gives: kept rows move up, freed rows are padding.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
-from typing import Literal, Mapping
+from typing import Literal
 
 import numpy as np
 
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import CATEGORIES, ScenarioRecord, SuiteRecord
 from drivee2e_jax.scenario.pack import LEAVES, PackedBatch, flatten_scenario, track_order, unflatten_scenario
-from drivee2e_jax.scenario.records import CATEGORIES, ScenarioRecord, SuiteRecord
 
 __all__ = ["FILTER_CATEGORIES", "KEPT_WHEN_VEHICLES", "filter_invisible", "filter_invisible_packed",
            "never_visible", "removable_categories"]

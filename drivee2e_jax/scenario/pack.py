@@ -41,14 +41,16 @@ from __future__ import annotations
 import dataclasses
 import math
 import typing
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import Any
 
+import jax
 import numpy as np
 
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.records import (
+from drivee2e_jax.records import (
     CATEGORIES,
     LANE_TYPES,
     MARKINGS,
@@ -146,18 +148,18 @@ class PackSizes:
             object.__setattr__(self, f.name, int(v))
 
     @classmethod
-    def rounded(cls, needs: dict[str, int]) -> "PackSizes":
+    def rounded(cls, needs: dict[str, int]) -> PackSizes:
         """Sizes holding ``needs`` (name -> count), rounded up per ``MULTIPLE``."""
         return cls(**{k: m * max(1, math.ceil(needs.get(k, 0) / m)) for k, m in cls.MULTIPLE.items()})
 
     @classmethod
-    def fit(cls, scenarios: Sequence[ScenarioRecord], maps: dict[str, MapRecord]) -> "PackSizes":
+    def fit(cls, scenarios: Sequence[ScenarioRecord], maps: dict[str, MapRecord]) -> PackSizes:
         """The maxima over ``scenarios`` (and their maps), rounded up."""
         needs = _needs(scenarios, maps, [densify_route(s.route.waypoints)[0] for s in scenarios])
         return cls.rounded({k: n for k, (n, _) in needs.items()})
 
     @classmethod
-    def of(cls, scenario: types.Scenario) -> "PackSizes":
+    def of(cls, scenario: types.Scenario) -> PackSizes:
         """The padded sizes of a packed (batched) Scenario, read off its shapes."""
         m = scenario.map
         return cls(
@@ -170,7 +172,7 @@ class PackSizes:
             obstacle_vertices=m.obstacles.xy.shape[-2],
         )
 
-    def replace(self, **changes: int) -> "PackSizes":
+    def replace(self, **changes: int) -> PackSizes:
         return dataclasses.replace(self, **changes)
 
     def as_dict(self) -> dict[str, int]:
@@ -334,7 +336,7 @@ class SuiteMeta:
     def columns(self) -> dict[str, np.ndarray]:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
-    def select(self, rows: Sequence[int] | np.ndarray) -> "SuiteMeta":
+    def select(self, rows: Sequence[int] | np.ndarray) -> SuiteMeta:
         rows = np.asarray(rows)
         return SuiteMeta(**{k: v[rows] for k, v in self.columns().items()})
 
@@ -357,7 +359,7 @@ class SuiteMeta:
         return {k: v.tolist() for k, v in self.columns().items()}
 
     @classmethod
-    def from_json(cls, data: dict[str, list]) -> "SuiteMeta":
+    def from_json(cls, data: dict[str, list]) -> SuiteMeta:
         cols = {k: np.asarray(data[k], dtype=str) for k in _META_STR}
         cols.update({k: np.asarray(data[k], dtype=t) for k, t in {**_META_NUM, **_META_2D}.items()})
         n = len(cols["scenario_id"])
@@ -394,22 +396,21 @@ class PackedBatch:
     def padding_efficiency(self) -> float:
         return padding_efficiency(self)
 
-    def select(self, rows: Sequence[int] | np.ndarray) -> "PackedBatch":
+    def select(self, rows: Sequence[int] | np.ndarray) -> PackedBatch:
         """The rows ``rows`` (a new batch, same padded sizes)."""
         rows = np.asarray(rows, dtype=np.int64)
         flat = {k: np.asarray(v)[rows] for k, v in flatten_scenario(self.scenario).items()}
         return PackedBatch(unflatten_scenario(flat).validate(), self.meta.select(rows))
 
-    def resize(self, sizes: PackSizes) -> "PackedBatch":
+    def resize(self, sizes: PackSizes) -> PackedBatch:
         return resize(self, sizes)
 
-    def fit(self) -> "PackedBatch":
+    def fit(self) -> PackedBatch:
         """This batch with the tightest (rounded) sizes that hold its rows."""
         return resize(self, fit_sizes(self))
 
     def to_jax(self) -> types.Scenario:
         """The scenario pytree as JAX arrays on the default device."""
-        import jax
 
         return jax.device_put(self.scenario)
 

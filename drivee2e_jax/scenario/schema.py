@@ -28,14 +28,16 @@ import json
 import os
 import re
 import shutil
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.records import (
+from drivee2e_jax.progress import progress as progress_bar
+from drivee2e_jax.records import (
     BEHAVIORS,
     CATEGORIES,
     LANE_TYPES,
@@ -872,9 +874,7 @@ def write_suite(suite: SuiteRecord, path: str | os.PathLike, *, overwrite: bool 
             (tmp / "maps" / f"{key}.json").write_text(_dumps(_jsonify(_map_obj(m))), encoding="utf-8")
         scenarios = suite.scenarios
         if progress:
-            from tqdm import tqdm
-
-            scenarios = tqdm(scenarios, desc=f"writing {suite.name}", unit="scenario", disable=None)
+            scenarios = progress_bar(scenarios, desc=f"writing {suite.name}", unit="scenario")
         for s in scenarios:
             (tmp / "scenarios" / f"{s.scenario_id}.json").write_text(_dumps(_jsonify(_scenario_obj(s))), encoding="utf-8")
         (tmp / "suite.json").write_text(_dumps(_jsonify(_suite_obj(suite))), encoding="utf-8")
@@ -955,9 +955,7 @@ def _load(folder: Path, progress: bool) -> tuple[SuiteRecord | None, list[Proble
     scenarios: list[ScenarioRecord] = []
     todo = entries
     if progress:
-        from tqdm import tqdm
-
-        todo = tqdm(entries, desc=f"reading {folder.name}", unit="scenario", disable=None)
+        todo = progress_bar(entries, desc=f"reading {folder.name}", unit="scenario")
     for entry in todo:
         rel = f"scenarios/{entry['id']}.json"
         if entry["id"] not in on_disk:

@@ -22,6 +22,7 @@ asked for.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import io
 import json
 import logging
@@ -29,7 +30,6 @@ import mmap
 import os
 import re
 import struct
-import uuid
 import zipfile
 import zlib
 from pathlib import Path
@@ -39,6 +39,17 @@ import numpy as np
 
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import atomic_write, cache_dir
+from drivee2e_jax.records import (
+    BEHAVIORS,
+    CATEGORIES,
+    SCHEMA_VERSION,
+    SPLITS,
+    TIMES_OF_DAY,
+    WEATHERS,
+    SuiteRecord,
+)
+from drivee2e_jax.scenario import schema
 from drivee2e_jax.scenario.pack import (
     LEAVES,
     PACK_FORMAT,
@@ -51,22 +62,11 @@ from drivee2e_jax.scenario.pack import (
     resize,
     unflatten_scenario,
 )
-from drivee2e_jax.scenario import schema
-from drivee2e_jax.scenario.records import (
-    BEHAVIORS,
-    CATEGORIES,
-    SCHEMA_VERSION,
-    SPLITS,
-    TIMES_OF_DAY,
-    WEATHERS,
-    SuiteRecord,
-)
 
-__all__ = ["Suite", "load_suite", "generate_suite", "cache_dir", "BUILTIN_SUITES", "CACHE_ENV"]
+__all__ = ["Suite", "load_suite", "generate_suite", "BUILTIN_SUITES"]
 
 log = logging.getLogger("drivee2e.cache")
 
-CACHE_ENV = "DRIVEE2E_CACHE"
 #: Layout version of the cache files (bump to orphan old caches).
 CACHE_FORMAT = 1
 
@@ -75,14 +75,6 @@ CACHE_FORMAT = 1
 BUILTIN_SUITES: dict[str, tuple[str, int]] = {"twin15": ("drivee2e_jax.scenario.twin15", 0)}
 
 _GENERATED: dict[tuple[str, int], SuiteRecord] = {}
-
-
-def cache_dir() -> Path | None:
-    """The cache root (None when caching is disabled with ``off``)."""
-    value = os.environ.get(CACHE_ENV, "").strip()
-    if value.lower() in ("off", "0", "none", "false"):
-        return None
-    return Path(value or "~/.cache/drivee2e").expanduser()
 
 
 # --------------------------------------------------------------------------
@@ -98,7 +90,6 @@ class _Builtin:
 
     def module(self):
         if self._module is None:
-            import importlib
 
             try:
                 self._module = importlib.import_module(self.module_name)
@@ -203,17 +194,6 @@ def _cache_paths(source, key: str) -> tuple[Path, Path] | None:
     return stem.with_suffix(".npz"), stem.with_suffix(".json")
 
 
-def _atomic_write(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            write(fh)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 class _Packed:
     """The full suite: meta + category counts (sidecar) and the batch (npz, lazy)."""
 
@@ -302,11 +282,11 @@ def _save(paths: tuple[Path, Path], key: str, name: str, batch: PackedBatch,
     try:
         npz.parent.mkdir(parents=True, exist_ok=True)
         flat = {k: np.asarray(v) for k, v in flatten_scenario(batch.scenario).items()}
-        _atomic_write(npz, lambda fh: np.savez(fh, **flat))
+        atomic_write(npz, lambda fh: np.savez(fh, **flat), binary=True)
         head = {"format": CACHE_FORMAT, "key": key, "suite": name, "schema_version": SCHEMA_VERSION,
                 "pack_format": PACK_FORMAT, "npz_bytes": npz.stat().st_size,
                 "sizes": batch.sizes.as_dict(), "categories": categories, "meta": batch.meta.to_json()}
-        _atomic_write(side, lambda fh: fh.write(json.dumps(head, separators=(",", ":")).encode()))
+        atomic_write(side, lambda fh: fh.write(json.dumps(head, separators=(",", ":")).encode()), binary=True)
         prefix = npz.stem.rsplit("-", 1)[0]
         for old in npz.parent.glob(f"{prefix}-*"):
             if old.stem != npz.stem and old.suffix in (".npz", ".json"):
@@ -348,7 +328,7 @@ class Suite:
         self._packed: _Packed | None = None
 
     @classmethod
-    def from_records(cls, records: SuiteRecord) -> "Suite":
+    def from_records(cls, records: SuiteRecord) -> Suite:
         problems = schema.validate_records(records)
         if problems:
             raise schema.problems_error(problems)

@@ -21,6 +21,8 @@ import typing
 from pathlib import Path
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.eval.tasks import TASKS
+from drivee2e_jax.sim import SCORE_PRESETS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,7 +112,7 @@ class SimSection:
     compass_noise_std: tuple[float, ...] = (0.0,)
 
 
-#: Aggregates a combined table can show (``bench.summary_of`` keys).
+#: Aggregates a combined table can show (``summary.summary_of`` keys).
 METRICS = (
     "success_rate", "driving_score", "route_completion", "infraction_score", "collisions_per_km",
     "red_light_per_km", "outside_route_lanes_pct", "km_driven", "task_success_rate", "efficiency_pct",
@@ -250,8 +252,6 @@ def _kind(typ) -> str:
 
 def _check_values(cfg: SweepConfig, source: str) -> None:
     """Ranges and names (types are checked by ``_table``)."""
-    from drivee2e_jax.sim import SCORE_PRESETS
-    from drivee2e_jax.tasks import TASKS
 
     def bad(where: str, msg: str):
         raise DriveE2EError(f"{source}: {where} {msg}")
@@ -297,7 +297,7 @@ def _check_values(cfg: SweepConfig, source: str) -> None:
 def variant_names() -> tuple[str, ...]:
     """The suite variants ``bench`` knows (only ``complete`` before ``scenario.variants`` exists)."""
     try:
-        from drivee2e_jax.scenario.variants import VARIANTS
+        from drivee2e_jax.eval.variants import VARIANTS
     except ImportError:
         return ("complete",)
     return tuple(VARIANTS)

@@ -19,13 +19,19 @@ import dataclasses
 import itertools
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.io.results import atomic_write_json, atomic_write_text, rows_to_csv
+from drivee2e_jax.eval.bench import BenchConfig, run_bench
+from drivee2e_jax.eval.report import load_rows
+from drivee2e_jax.eval.results import rows_to_csv
+from drivee2e_jax.eval.summary import summary_of
+from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.policy import resolve_policy_path
+from drivee2e_jax.progress import progress as progress_bar
 from drivee2e_jax.sweep.config import SimSection, SweepConfig, out_dir
 
 #: Marker of a complete run inside its folder.
@@ -88,7 +94,6 @@ def _run_id(suite: str, split: str, variant: str, task: str, sim: dict) -> str:
 
 def bench_config(cfg: SweepConfig, run: Run, out: Path, *, force: bool = False, progress: bool = True):
     """The ``bench.BenchConfig`` of one run (policies resolved to files)."""
-    from drivee2e_jax.bench import BenchConfig
 
     extra = {}
     if "variant" in {f.name for f in dataclasses.fields(BenchConfig)}:
@@ -107,7 +112,6 @@ def bench_config(cfg: SweepConfig, run: Run, out: Path, *, force: bool = False, 
 
 def policy_paths(cfg: SweepConfig) -> list[Path]:
     """Each ``[[policies]] path`` as a file (reference names resolved)."""
-    from drivee2e_jax.cli.bench import resolve_policy_path
 
     out = []
     for i, p in enumerate(cfg.policies):
@@ -125,8 +129,6 @@ def is_complete(run_dir: Path) -> bool:
 def run_sweep(cfg: SweepConfig, *, force: bool = False, progress: bool = True,
               print_fn: Callable[[str], None] = print) -> list[dict]:
     """Run every missing run of ``cfg``, then write the combined tables. Returns their rows."""
-    from drivee2e_jax.bench import run_bench
-    from drivee2e_jax.cli.common import progress as progress_bar
 
     out = out_dir(cfg)
     runs = expand(cfg)
@@ -197,8 +199,6 @@ def _diff(old: dict, new: dict) -> str:
 
 def combined_rows(cfg: SweepConfig, runs: list[Run], out: Path) -> list[dict]:
     """One row per run x policy: the run's settings, then each metric's mean and std over repetitions."""
-    from drivee2e_jax.bench import summary_of
-    from drivee2e_jax.io.report import load_rows
 
     rows = []
     for run in runs:

@@ -31,8 +31,8 @@ import io
 import json
 import math
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 import jax
 import jax.numpy as jnp
@@ -40,15 +40,21 @@ import numpy as np
 from flax import struct
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.io.results import atomic_write, atomic_write_json
+from drivee2e_jax.eval.closedloop import device_batch
+from drivee2e_jax.files import atomic_write, atomic_write_json
 from drivee2e_jax.models import base
-from drivee2e_jax.observe.bev import BevConfig
+from drivee2e_jax.models.checkpoint import DATA_FORMAT as FORMAT
+from drivee2e_jax.models.checkpoint import DATA_MANIFEST as MANIFEST
+from drivee2e_jax.models.checkpoint import DEFAULT_BEV, bev_of_manifest
+from drivee2e_jax.observe import sensors as sens
+from drivee2e_jax.observe.bev import BevConfig, check_bev
+from drivee2e_jax.observe.sensors import SensorConfig
+from drivee2e_jax.policy import load_policy, reference_policy_dir
+from drivee2e_jax.scenario import load_suite
 from drivee2e_jax.scenario.pack import flatten_dataclass, unflatten_dataclass
+from drivee2e_jax.sim import SimConfig, Simulator
 
-FORMAT = 1
-MANIFEST = "manifest.json"
 #: The BEV rendered unless ``DatasetConfig`` sizes it (= the simulator's default).
-DEFAULT_BEV = BevConfig()
 
 
 @struct.dataclass
@@ -110,40 +116,8 @@ class DatasetConfig:
     @property
     def sensor_config(self):
         """``observe.sensors.SensorConfig`` of the recording (ValueError on a bad one)."""
-        from drivee2e_jax.observe.sensors import SensorConfig
 
         return SensorConfig.for_policy(tuple(self.sensors), SensorConfig(bev=self.bev))
-
-
-def bev_of_manifest(manifest: dict) -> BevConfig | None:
-    """The BEV a dataset was rendered at (None: no BEV); manifests from before
-    the size was recorded used the default 128 x 128 at 0.5 m/px."""
-    if "bev" not in manifest.get("sensors", ()):
-        return None
-    b = manifest.get("bev") or {}
-    return dataclasses.replace(DEFAULT_BEV, height=int(b.get("height", DEFAULT_BEV.height)),
-                               width=int(b.get("width", DEFAULT_BEV.width)),
-                               resolution=float(b.get("resolution", DEFAULT_BEV.resolution)))
-
-
-def training_bev(meta: dict) -> BevConfig | None:
-    """The BEV the training data of a checkpoint (its ``meta.json``) was
-    rendered at: ``meta["data_bev"]`` (the manifest's ``"bev"``) when the
-    training loop stored one, else the manifest of ``meta["config"]["data"]``
-    when that folder still holds the data trained on (same digest); None when
-    unknown or without a BEV."""
-    if meta.get("data_bev"):
-        return bev_of_manifest({"sensors": ["bev"], "bev": meta["data_bev"]})
-    data = (meta.get("config") or {}).get("data")
-    if not data:
-        return None
-    try:
-        ds = DemoDataset(data)
-    except DriveE2EError:
-        return None
-    if meta.get("data_digest") not in (None, ds.digest):
-        return None
-    return ds.bev
 
 
 # --------------------------------------------------------------------------
@@ -167,8 +141,6 @@ def unflatten(flat: dict, cls=Sample):
 
 
 def _log_replay_policy():
-    from drivee2e_jax.cli.bench import reference_policy_dir
-    from drivee2e_jax.policy import load_policy
 
     return load_policy(reference_policy_dir() / "log_replay.py")
 
@@ -242,10 +214,6 @@ def build_dataset(suite, split: str, out: str | Path, cfg: DatasetConfig = Datas
       cfg: ``DatasetConfig``.  limit: only the first ``limit`` scenarios.
       seed: PRNG seed (observation noise).  progress: ``progress(done, total)`` scenarios.
     """
-    from drivee2e_jax.evaluation import device_batch
-    from drivee2e_jax.observe import sensors as sens
-    from drivee2e_jax.scenario import load_suite
-    from drivee2e_jax.sim import SimConfig, Simulator
 
     t0 = time.perf_counter()
     suite = load_suite(suite)
@@ -341,13 +309,13 @@ class DemoDataset:
     def check_model(self, model, name: str | None = None) -> None:
         """One-line DriveE2EError unless ``model`` can train on this data: it
         has every sensor the model requires, at a BEV size the model reads
-        (``models.base.check_bev``)."""
+        (``observe.bev.check_bev``)."""
         name = name or getattr(model, "name", "?")
         missing = set(getattr(model, "required_sensors", ())) - set(self.manifest["sensors"])
         if missing:
             raise DriveE2EError(f"{self.path}: model {name!r} needs sensors {sorted(missing)} the dataset lacks "
                                 f"(rebuild with `drivee2e dataset build --sensors {','.join(sorted(missing))}`)")
-        base.check_bev(self.bev, model, f"{self.path}")
+        check_bev(self.bev, model, f"{self.path}")
 
     @property
     def digest(self) -> str:

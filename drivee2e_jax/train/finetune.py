@@ -68,8 +68,13 @@ from flax import struct
 from drivee2e_jax import controller as ctl
 from drivee2e_jax import dynamics, geometry, replay
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import atomic_write_json
 from drivee2e_jax.models import base
-from drivee2e_jax.sim import SimState, Simulator, sanitize_controls
+from drivee2e_jax.models import checkpoint as ckpt
+from drivee2e_jax.models.registry import get_model
+from drivee2e_jax.progress import progress as bar_of
+from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.sim import SimConfig, SimState, Simulator, sanitize_controls
 from drivee2e_jax.train.loop import check_run_dir, trim_log
 from drivee2e_jax.types import Controls, EgoState, Scenario, SignalState
 
@@ -445,8 +450,6 @@ def _merge(mask, fresh, carry):
 
 def load_init(init: str | Path):
     """(model, params, run config dict) of an imitation run / checkpoint."""
-    from drivee2e_jax.models import get_model
-    from drivee2e_jax.train import checkpoint as ckpt
 
     path = ckpt.resolve(init)
     meta = ckpt.read_meta(path)
@@ -465,10 +468,6 @@ def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, forc
 
     Returns {"steps", "loss", "wall_s", "checkpoints"}.
     """
-    from drivee2e_jax.cli.common import progress as bar_of
-    from drivee2e_jax.scenario import load_suite
-    from drivee2e_jax.sim import SimConfig
-    from drivee2e_jax.train import checkpoint as ckpt
 
     out = Path(out)
     model, init_params, meta = load_init(cfg.init)
@@ -477,7 +476,6 @@ def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, forc
                                       "data": data, "finetune": cfg.to_json()}))
     check_run_dir(out, cfg_json, resume, force)
     out.mkdir(parents=True, exist_ok=True)
-    from drivee2e_jax.io.results import atomic_write_json
 
     atomic_write_json(out / "config.json", cfg_json)
 

@@ -20,18 +20,23 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.io.results import atomic_write_json, atomic_write_text
-from drivee2e_jax.train import checkpoint as ckpt
+from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.models import checkpoint as ckpt
+from drivee2e_jax.models.registry import get_model
+from drivee2e_jax.progress import progress as bar_of
 from drivee2e_jax.train.dataset import DemoDataset
 
 
@@ -108,7 +113,6 @@ def data_sharding(batch_size: int):
     devices = jax.local_devices()
     if len(devices) < 2:
         return None, None
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     if batch_size % len(devices):
         raise DriveE2EError(f"train: --batch-size {batch_size} must be a multiple of the {len(devices)} devices")
@@ -121,7 +125,6 @@ def check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None:
     if not cfg_file.is_file():
         return
     if force:
-        import shutil
 
         for name in ("checkpoints", "log.jsonl", "config.json"):
             p = out / name
@@ -152,8 +155,6 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
 
     Returns {"epochs", "steps", "loss", "wall_s", "checkpoints"}.
     """
-    from drivee2e_jax.cli.common import progress as bar_of
-    from drivee2e_jax.models import get_model
 
     out = Path(out)
     ds = DemoDataset(cfg.data)
@@ -220,7 +221,6 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
 
 def model_of_run(run_dir: str | Path) -> Any:
     """The model a run folder trained (from its ``config.json``)."""
-    from drivee2e_jax.models import get_model
 
     f = Path(run_dir) / "config.json"
     if not f.is_file():

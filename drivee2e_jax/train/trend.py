@@ -3,7 +3,7 @@
 For every checkpoint ``RUN/checkpoints/<epoch>`` of a training run, on one
 split: open-loop L2 at 1 s / 2 s and the open-loop collision rate on the
 logged demonstrations (``openloop.evaluate_openloop``), and closed-loop SR /
-DS (``evaluation.evaluate``, aggregated by ``bench.summary_of``) -- the
+DS (``closedloop.evaluate``, aggregated by ``summary.summary_of``) -- the
 source paper's Figure 5, which shows that lower L2 need not mean better
 driving. One policy object serves every checkpoint (the parameters are an
 argument), so the open-loop program compiles once.
@@ -19,13 +19,23 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.io.results import atomic_write, atomic_write_json, atomic_write_text, rows_to_csv
+from drivee2e_jax.eval.closedloop import evaluate
+from drivee2e_jax.eval.openloop import evaluate_openloop
+from drivee2e_jax.eval.results import rows_to_csv
+from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, summary_of
+from drivee2e_jax.files import atomic_write, atomic_write_json, atomic_write_text
+from drivee2e_jax.models import checkpoint as ckpt
+from drivee2e_jax.models.base import as_policy
+from drivee2e_jax.models.checkpoint import training_bev
+from drivee2e_jax.observe.sensors import SensorConfig
+from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.train.loop import model_of_run
 
 #: trend.csv columns, in order. l2_* follow ST-P3 (mean over the steps up to
 #: k s), *_uniad the value at k s; rates in [0, 1]; SR in %, DS in [0, 100].
@@ -38,9 +48,6 @@ COLUMNS = (
 
 def evaluate_checkpoint(policy, params, packed, maps, *, limit: int | None, seed: int) -> dict:
     """Open- and closed-loop metrics of ``policy`` with ``params`` on ``packed``."""
-    from drivee2e_jax.bench import OPEN_LOOP_COLUMNS, summary_of
-    from drivee2e_jax.evaluation import evaluate
-    from drivee2e_jax.openloop import evaluate_openloop
 
     res = evaluate(policy, packed, None, params=params, seed=seed, limit=limit, maps=maps)
     ol = evaluate_openloop(policy, packed, params=params, seed=seed, limit=limit, maps=maps)
@@ -68,12 +75,6 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
       split: split evaluated.  limit: only its first ``limit`` scenarios.
       mode: ``models.base.as_policy`` mode ("traj" for the open-loop metrics).
     """
-    from drivee2e_jax.models.base import as_policy
-    from drivee2e_jax.observe.sensors import SensorConfig
-    from drivee2e_jax.train.dataset import training_bev
-    from drivee2e_jax.scenario import load_suite
-    from drivee2e_jax.train import checkpoint as ckpt
-    from drivee2e_jax.train.loop import model_of_run
 
     run_dir, out = Path(run_dir), Path(out)
     ckpts = ckpt.list_checkpoints(run_dir)

@@ -17,6 +17,7 @@ import base64
 import io
 
 import numpy as np
+from PIL import Image
 
 #: Metres per int16 unit of an encoded LiDAR point (+-327 m range at 1 cm).
 LIDAR_SCALE = 0.01
@@ -76,7 +77,6 @@ def composite_bev(bev, channels) -> np.ndarray:
 
 def png_data_uri(rgb: np.ndarray) -> str:
     """(H, W, 3) uint8 -> ``data:image/png;base64,...``."""
-    from PIL import Image
 
     buf = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8), "RGB").save(buf, format="PNG", optimize=True)

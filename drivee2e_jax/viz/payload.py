@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivee2e_jax.observe.raycast import HIT_AGENT
+from drivee2e_jax.types import Category, Marking, SignalState
 from drivee2e_jax.viz import encode
 
 #: Timelines drawn under the scene: (name, label, unit, source, scale, range, colour).
@@ -42,8 +44,6 @@ FRONT_GAP_CAP_M = 50.0
 
 def enum_meta() -> dict:
     """Enum names by value, so the page needs no copy of ``types``."""
-    from drivee2e_jax.observe.raycast import HIT_AGENT
-    from drivee2e_jax.types import Category, Marking, SignalState
 
     def names(enum):
         return [m.name.lower() for m in sorted(enum, key=int)]

@@ -1,7 +1,7 @@
 """The self-contained HTML episode player (host side).
 
 ``write_player(traces, out_path, title=...)`` turns episode traces
-(``drivee2e_jax.io.episodes.trace_episodes``) into ONE html file: the
+(``drivee2e_jax.eval.traces.trace_episodes``) into ONE html file: the
 template ``player.html`` (vanilla JS + canvas, no network) with the episodes
 embedded as JSON in a ``<script type="application/json">`` tag. The embedded
 document is::
@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import html
 import json
+from collections.abc import Iterable
 from importlib import resources
 from pathlib import Path
-from typing import Iterable
 
-from drivee2e_jax.io.results import atomic_write_text
+from drivee2e_jax.files import atomic_write_text
+from drivee2e_jax.viz import payload
 
 TEMPLATE = "player.html"
 
@@ -52,7 +53,6 @@ def build_document(traces: Iterable, **payload_kw) -> dict:
     """Episode traces -> the embedded document (meta, shared maps, episodes).
 
     ``payload_kw`` go to ``payload.episode_payload`` (sensor subsampling)."""
-    from drivee2e_jax.viz import payload
 
     maps: dict[str, dict] = {}
     episodes = []

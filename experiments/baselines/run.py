@@ -22,7 +22,7 @@
    policies, the waypoint controller's state).
 
 Aggregates come from the bench's per-scenario rows through
-``drivee2e_jax.bench.summary_of`` (the same numbers ``drivee2e bench``
+``drivee2e_jax.eval.summary.summary_of`` (the same numbers ``drivee2e bench``
 prints). L2 avg is the mean of L2 @ 1 s and @ 2 s, as the source's Table 4
 (e.g. AD-MLP: (4.98 + 11.75) / 2 = 8.36); L2 is in the ST-P3 convention
 (mean over the steps up to t). Training minutes are the training-loop time
@@ -48,14 +48,11 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))  # `python experiments/baselines/run.py` without an install
 
-from drivee2e_jax.bench import (
-    BEHAVIOR_ORDER as BEHAVIOURS,  # the source's Table 5 order
-)
-from drivee2e_jax.cli.bench import (
-    REFERENCE_POLICIES as KNOWN_REFERENCES,  # names `drivee2e bench` accepts
-)
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.io.results import atomic_write_json, atomic_write_text, rows_to_csv
+from drivee2e_jax.eval.results import rows_to_csv
+from drivee2e_jax.eval.summary import BEHAVIOR_ORDER as BEHAVIOURS  # the source's Table 5 order
+from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.policy import REFERENCE_POLICIES as KNOWN_REFERENCES  # names `drivee2e bench` accepts
 
 #: model -> (demonstrations folder, default epochs, evaluated policies as (result name, policy file)).
 MODELS = {
@@ -332,8 +329,8 @@ def load_policy_rows(bdir: Path, name: str) -> tuple[list[dict], dict]:
 
 
 def table4_row(name: str, rows: list[dict], timing: dict, model: str | None, training: dict | None) -> dict:
-    """One Table 4 row from a policy's per-scenario rows (``bench.summary_of``)."""
-    from drivee2e_jax.bench import summary_of
+    """One Table 4 row from a policy's per-scenario rows (``summary.summary_of``)."""
+    from drivee2e_jax.eval.summary import summary_of
 
     o = summary_of(rows)
     l2_1, l2_2 = o.get("l2_1s_stp3"), o.get("l2_2s_stp3")
@@ -367,7 +364,7 @@ def table4_row(name: str, rows: list[dict], timing: dict, model: str | None, tra
 
 def behaviour_rows(name: str, rows: list[dict]) -> list[dict]:
     """Per behaviour group (source order, then any other): n, SR %, DS."""
-    from drivee2e_jax.bench import summary_of
+    from drivee2e_jax.eval.summary import summary_of
 
     groups = [g for g in BEHAVIOURS if any(r["behavior"] == g for r in rows)]
     groups += sorted({r["behavior"] for r in rows} - set(groups))

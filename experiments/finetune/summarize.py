@@ -22,7 +22,7 @@ COUNT_COLS = ("collisions_vehicle", "collisions_pedestrian", "collisions_cyclist
 
 
 def results_table(folder: Path) -> str:
-    from drivee2e_jax.bench import summary_of
+    from drivee2e_jax.eval.summary import summary_of
 
     lines = ["| policy | " + " | ".join(RESULT_COLS) + " | " + " | ".join(COUNT_COLS) + " |",
              "|---" * (1 + len(RESULT_COLS) + len(COUNT_COLS)) + "|"]

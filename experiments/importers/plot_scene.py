@@ -24,7 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from drivee2e_jax.scenario.records import MapRecord, ScenarioRecord  # noqa: E402
+from drivee2e_jax.records import MapRecord, ScenarioRecord  # noqa: E402
 from drivee2e_jax.scenario.schema import read_suite  # noqa: E402
 
 _MARK_STYLE = {"road_edge": ("k", "-", 1.6), "solid": ("0.3", "-", 0.9), "double_solid": ("y", "-", 1.2),

@@ -13,17 +13,16 @@ rerun resumes); the visibility masks are computed once per split and cached.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 POLICIES = ("log_replay", "expert")
 
 
 def run(suite: str, split: str, policies: tuple[str, ...], out: Path, limit: int | None, progress: bool) -> dict:
-    """{variant: bench summary} (``bench.summarize``)."""
-    from drivee2e_jax.bench import BenchConfig, run_bench
-    from drivee2e_jax.cli.bench import resolve_policy_path
-    from drivee2e_jax.scenario.variants import VARIANTS
+    """{variant: bench summary} (``summary.summarize``)."""
+    from drivee2e_jax.eval.bench import BenchConfig, run_bench
+    from drivee2e_jax.eval.variants import VARIANTS
+    from drivee2e_jax.policy import resolve_policy_path
 
     paths = tuple(str(resolve_policy_path(p)) for p in policies)
     quiet = lambda line: print(line) if line.startswith(("variant ", "suite ", "[")) else None  # noqa: E731
@@ -78,7 +77,7 @@ def main(argv=None) -> int:
     table = markdown(results, names)
     text = f"{args.suite} {args.split}, {n} scenarios\n\n{table}\n"
     print("\n" + text)
-    from drivee2e_jax.io.results import atomic_write_json, atomic_write_text
+    from drivee2e_jax.files import atomic_write_json, atomic_write_text
 
     atomic_write_text(args.out / "table6.md", text)
     atomic_write_json(args.out / "table6.json", {v: {"run": s["run"], "overall": {p: s["policies"][p]["overall"]

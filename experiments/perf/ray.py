@@ -54,7 +54,6 @@ def _scenes(batch: int, agents: int = 128, obstacles: int = 8, seed: int = 0):
 
 
 def _sensor(kind: str, channels: int, bins: int, k: int):
-    import jax.numpy as jnp
 
     from drivee2e_jax.observe import raycast
 

@@ -160,7 +160,7 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     import jax.numpy as jnp
     import numpy as np
 
-    from drivee2e_jax.evaluation import init_params, with_policy_sensors
+    from drivee2e_jax.eval.closedloop import init_params, with_policy_sensors
     from drivee2e_jax.observe import sensors
     from drivee2e_jax.rollout import Rollout, balanced_chunk
     from drivee2e_jax.scenario import load_suite

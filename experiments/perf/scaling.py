@@ -44,7 +44,7 @@ def child(args) -> None:
     import jax
     import numpy as np
 
-    from drivee2e_jax.evaluation import device_batch, init_params
+    from drivee2e_jax.eval.closedloop import device_batch, init_params
     from drivee2e_jax.policy import load_policy
     from drivee2e_jax.rollout import Rollout, shard_rollout_inputs
     from drivee2e_jax.scenario import load_suite

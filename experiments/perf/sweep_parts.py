@@ -44,7 +44,7 @@ def _setup(batch: int, reads, sensor_overrides: dict):
     import numpy as np
     from run import mlp_sensor_policy
 
-    from drivee2e_jax.evaluation import init_params, with_policy_sensors
+    from drivee2e_jax.eval.closedloop import init_params, with_policy_sensors
     from drivee2e_jax.observe import sensors
     from drivee2e_jax.scenario import load_suite
     from drivee2e_jax.sim import SimConfig, Simulator

@@ -29,7 +29,7 @@ def plot(run: Path, out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from drivee2e_jax.io.results import atomic_write
+    from drivee2e_jax.files import atomic_write
 
     steps, epochs = read_log(run)
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))

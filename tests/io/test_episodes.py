@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivee2e_jax.bench import BenchConfig, run_bench
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.io import episodes
+from drivee2e_jax.eval import traces as episodes
+from drivee2e_jax.eval.bench import BenchConfig, run_bench
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "scenarios" / "examples" / "tiny"

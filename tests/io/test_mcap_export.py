@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from drivee2e_jax.bench import BenchConfig, run_bench
 from drivee2e_jax.cli import main
-from drivee2e_jax.io import episodes
+from drivee2e_jax.eval import traces as episodes
+from drivee2e_jax.eval.bench import BenchConfig, run_bench
 from drivee2e_jax.io import mcap_export as mx
 from drivee2e_jax.observe.bev import BevConfig
 from drivee2e_jax.observe.lidar import LidarConfig

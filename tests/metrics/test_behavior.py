@@ -6,14 +6,13 @@ hand-built inputs, and the project's episode definitions on hand-built drives.
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from metric_cases import subset_case
 
 from drivee2e_jax.metrics.behavior import (
     bm_code_metrics,
@@ -23,7 +22,6 @@ from drivee2e_jax.metrics.behavior import (
     front_time_shares,
     nearest_waypoints,
 )
-from metric_cases import subset_case
 
 R2 = math.sqrt(2.0)
 

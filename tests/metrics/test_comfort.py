@@ -7,14 +7,13 @@ pipeline against a transcription of B2D's scipy code, and simulated drives.
 
 from __future__ import annotations
 
-import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from metric_cases import subset_case
 
 from drivee2e_jax.metrics.comfort import (
     b2d_comfort_checks,
@@ -24,7 +23,6 @@ from drivee2e_jax.metrics.comfort import (
     b2d_smoothness,
     savgol_filter,
 )
-from metric_cases import subset_case
 
 
 def frames(n, ax=None, ay=0.0, yaw_rate=None):

@@ -8,19 +8,16 @@ shared with ``test_metric_cases.py``, which feeds them the full shared file.
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from metric_cases import subset_case
 
 from drivee2e_jax.metrics import criteria as cr
 from drivee2e_jax.metrics.driving_score import RouteOutcome, ScoreConfig, route_score
 from drivee2e_jax.types import Route
-from metric_cases import subset_case
 
 
 def straight_route(n_points: int, pad_to: int, spacing: float = 1.0, dtype=np.float32) -> Route:

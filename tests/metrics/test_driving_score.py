@@ -8,14 +8,13 @@ case dict (metric_cases.json format) and are shared with
 
 from __future__ import annotations
 
-import json
 import re
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from metric_cases import subset_case  # noqa: E402  (the tests' shared case loader)
 
 from drivee2e_jax.metrics.driving_score import (
     INFRACTION_KEYS,
@@ -27,8 +26,6 @@ from drivee2e_jax.metrics.driving_score import (
     route_score,
     status_name,
 )
-
-from metric_cases import subset_case  # noqa: E402  (the tests' shared case loader)
 
 
 def score64(outcome: RouteOutcome, cfg: ScoreConfig):

@@ -8,9 +8,6 @@ shared case runner calls them too.
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -26,7 +23,6 @@ except ImportError:  # pragma: no cover - the oracle test is skipped
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.metrics import openloop as olm
-
 
 _load_case = subset_case
 

@@ -24,9 +24,15 @@ from shapely.geometry import Polygon
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.observe import bev as bevmod
 from drivee2e_jax.observe.bev import BevConfig, pixel_centres, render_bev, unpack_bits
-from drivee2e_jax.observe.raster import (Layer, layer_geometries, rasterize_map, rasterize_maps,
-                                         stack_rasters, stop_line_geometries)
-from drivee2e_jax.scenario.records import LaneRecord, MapRecord
+from drivee2e_jax.observe.raster import (
+    Layer,
+    layer_geometries,
+    rasterize_map,
+    rasterize_maps,
+    stack_rasters,
+    stop_line_geometries,
+)
+from drivee2e_jax.records import LaneRecord, MapRecord
 from drivee2e_jax.types import Category, SignalState
 
 CFG = BevConfig(height=64, width=64, resolution=0.5, num_agents=8)

@@ -22,10 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from ray_oracle import f32, jax_scene, scenes
 
 from drivee2e_jax import geometry as geo
 from drivee2e_jax.observe import raycast
-from ray_oracle import f32, jax_scene, scenes
 
 Z = 72
 _CFG = raycast.BufferConfig(depth=3, agent_tiers=((0, 10.0), (3, 40.0), (1, 180.0)),

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from drivee2e_jax import Simulator, SimConfig
-from drivee2e_jax.evaluation import evaluate, with_policy_sensors
+from drivee2e_jax import SimConfig, Simulator
+from drivee2e_jax.eval.closedloop import evaluate, with_policy_sensors
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.bev import BevConfig, unpack_bits
 from drivee2e_jax.observe.lidar import LidarConfig
@@ -65,8 +65,7 @@ def test_reset_renders_the_enabled_sensors_from_the_ego_state(tiny_suite):
 
 
 def test_a_sensor_policy_drives_exactly_like_log_replay(tiny_suite):
-    from drivee2e_jax.cli.bench import resolve_policy_path
-    from drivee2e_jax.policy import load_policy
+    from drivee2e_jax.policy import load_policy, resolve_policy_path
 
     suite = Suite.from_records(tiny_suite)
     cfg = SimConfig(sensors=SMALL)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.records import SuiteRecord
+from drivee2e_jax.records import SuiteRecord
 from drivee2e_jax.scenario.schema import (
     Problem,
     read_suite,

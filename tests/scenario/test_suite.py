@@ -9,6 +9,7 @@ import types as pytypes
 import numpy as np
 import pytest
 
+from drivee2e_jax import files
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario import Suite, load_suite, pack
 from drivee2e_jax.scenario import suite as suite_mod
@@ -177,9 +178,9 @@ def test_cache_key_follows_the_files(tiny_suite_dir, drivee2e_cache):
 def test_cache_can_be_disabled(tiny_suite_dir, monkeypatch, tmp_path):
     monkeypatch.setenv("DRIVEE2E_CACHE", "off")
     assert load_suite(tiny_suite_dir).pack("test").meta.scenario_id.tolist() == ["s_test"]
-    assert suite_mod.cache_dir() is None
+    assert files.cache_dir() is None
     monkeypatch.delenv("DRIVEE2E_CACHE")
-    assert str(suite_mod.cache_dir()).endswith(".cache/drivee2e")
+    assert str(files.cache_dir()).endswith(".cache/drivee2e")
 
 
 def test_builtin_suite_generates_once_then_uses_the_cache(fake_twin15, drivee2e_cache, monkeypatch):

@@ -18,8 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Polygon
 
-from drivee2e_jax.scenario import twin15
-from drivee2e_jax.scenario.records import (
+from drivee2e_jax.records import (
     BEHAVIORS,
     CATEGORIES,
     MARKINGS,
@@ -27,6 +26,7 @@ from drivee2e_jax.scenario.records import (
     TIMES_OF_DAY,
     WEATHERS,
 )
+from drivee2e_jax.scenario import twin15
 from drivee2e_jax.scenario.twin15.boxes import corners, sat_overlap
 
 PER_200 = {"COV": 36, "IPC": 34, "UT": 5, "YLW": 17, "STR": 36, "LFT": 26, "RT": 24, "STP": 22}

@@ -17,11 +17,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from drivee2e_jax.eval import variants
 from drivee2e_jax.observe.camera import CameraConfig, CameraRigConfig
-from drivee2e_jax.scenario import variants
-from drivee2e_jax.scenario.filters import filter_invisible, filter_invisible_packed
-from drivee2e_jax.scenario.pack import flatten_scenario, pack
-from drivee2e_jax.scenario.records import (
+from drivee2e_jax.records import (
     LaneRecord,
     MapRecord,
     ObstacleRecord,
@@ -30,6 +28,8 @@ from drivee2e_jax.scenario.records import (
     SuiteRecord,
     TrackRecord,
 )
+from drivee2e_jax.scenario.filters import filter_invisible, filter_invisible_packed
+from drivee2e_jax.scenario.pack import flatten_scenario, pack
 from drivee2e_jax.scenario.suite import Suite
 
 DT, STEPS, SPEED = 0.1, 20, 5.0

@@ -137,7 +137,7 @@ def test_bad_bev_size_is_one_line_error(tmp_path, capsys):
 
 
 def test_a_model_that_cannot_read_the_dataset_bev_is_refused(bev64, tiny_demos):
-    from drivee2e_jax.models import get_model
+    from drivee2e_jax.models.registry import get_model
 
     ds = DemoDataset(bev64)
     ds.check_model(get_model("tcp"))  # 64 x 64 at 1 m/px: its size
@@ -151,7 +151,7 @@ def test_a_model_that_cannot_read_the_dataset_bev_is_refused(bev64, tiny_demos):
     with pytest.raises(DriveE2EError, match=r"needs sensors \['bev'\]"):
         DemoDataset(tiny_demos).check_model(get_model("tcp"))
     # A manifest from before the size was recorded: the default 128 x 128 at 0.5 m/px.
-    from drivee2e_jax.train.dataset import bev_of_manifest
+    from drivee2e_jax.models.checkpoint import bev_of_manifest
 
     legacy = bev_of_manifest({"sensors": ["bev"]})
     assert (legacy.height, legacy.resolution) == (128, 0.5) and bev_of_manifest({"sensors": []}) is None
@@ -163,7 +163,7 @@ def small_tcp(bev64):
     import jax
     import jax.numpy as jnp
 
-    from drivee2e_jax.models import get_model
+    from drivee2e_jax.models.registry import get_model
 
     model = get_model("tcp", **SMALL_TCP)
     obs = jax.tree_util.tree_map(jnp.asarray, DemoDataset(bev64).first().obs)
@@ -171,7 +171,7 @@ def small_tcp(bev64):
 
 
 def _save_tcp_checkpoint(run, params, **meta):
-    from drivee2e_jax.train import checkpoint
+    from drivee2e_jax.models import checkpoint
 
     checkpoint.save(run, 1, {"params": params}, {"model": "tcp", "model_config": SMALL_TCP, **meta})
 
@@ -179,7 +179,7 @@ def _save_tcp_checkpoint(run, params, **meta):
 def test_policy_is_evaluated_at_its_training_bev(bev64, small_tcp, tmp_path):
     import jax
 
-    from drivee2e_jax.evaluation import with_policy_sensors
+    from drivee2e_jax.eval.closedloop import with_policy_sensors
     from drivee2e_jax.observe import sensors
     from drivee2e_jax.observe.bev import BevConfig
     from drivee2e_jax.sim import SimConfig

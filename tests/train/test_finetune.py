@@ -16,10 +16,10 @@ from shapely.geometry import Polygon
 from drivee2e_jax import controller as ctl
 from drivee2e_jax import geometry
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.models import get_model
+from drivee2e_jax.models import checkpoint as ckpt
+from drivee2e_jax.models.registry import get_model
 from drivee2e_jax.replay import AgentStates
 from drivee2e_jax.sim import Simulator
-from drivee2e_jax.train import checkpoint as ckpt
 from drivee2e_jax.train import finetune as ft
 from drivee2e_jax.types import EgoState
 

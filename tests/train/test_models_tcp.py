@@ -11,7 +11,7 @@ import numpy as np
 import optax
 import pytest
 
-from drivee2e_jax import Simulator, SimConfig
+from drivee2e_jax import SimConfig, Simulator
 from drivee2e_jax.models import base, tcp
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.bev import unpack_bits
@@ -129,9 +129,9 @@ def test_a_few_adam_steps_decrease_the_loss(model, batch):
 
 
 def test_policy_files_name_the_source_rows_and_run_in_evaluate(model, batch, tmp_path):
-    from drivee2e_jax.evaluation import evaluate
+    from drivee2e_jax.eval.closedloop import evaluate
+    from drivee2e_jax.models import checkpoint
     from drivee2e_jax.policy import load_policy
-    from drivee2e_jax.train import checkpoint
 
     params = jax.jit(model.init)(jax.random.PRNGKey(0), first(batch.obs))
     checkpoint.save(tmp_path, 1, {"params": params}, {"model": "tcp", "model_config": CONFIG})

@@ -104,9 +104,9 @@ def test_a_few_adam_steps_decrease_the_loss(model, batch):
 
 
 def test_policy_file_restores_a_checkpoint_and_runs_in_evaluate(model, batch, params, apply, tmp_path):
-    from drivee2e_jax.evaluation import evaluate
+    from drivee2e_jax.eval.closedloop import evaluate
+    from drivee2e_jax.models import checkpoint
     from drivee2e_jax.policy import load_policy
-    from drivee2e_jax.train import checkpoint
 
     checkpoint.save(tmp_path, 3, {"params": params}, {"model": "vector_transformer", "model_config": CONFIG})
     pol = load_policy(REPO / "policies" / "vector_transformer.py", checkpoint=tmp_path)

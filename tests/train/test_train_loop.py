@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.models import get_model
-from drivee2e_jax.train import checkpoint as ckpt
+from drivee2e_jax.models import checkpoint as ckpt
+from drivee2e_jax.models.registry import get_model
 from drivee2e_jax.train.dataset import DemoDataset
 from drivee2e_jax.train.loop import batch_loss, make_optimizer, make_train_step, train
 

@@ -25,6 +25,7 @@ def player(tmp_path_factory):
     """A results folder of the expert on the tiny suite's 2 train scenarios, and its player."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from conftest import build_tiny_suite
+
     from drivee2e_jax.scenario.schema import write_suite
 
     root = tmp_path_factory.mktemp("viewer")

@@ -11,7 +11,7 @@ import re
 import numpy as np
 import pytest
 
-from drivee2e_jax.io.episodes import AgentsTrace, EpisodeTrace, StaticMap
+from drivee2e_jax.eval.traces import AgentsTrace, EpisodeTrace, StaticMap
 from drivee2e_jax.viz import encode
 from drivee2e_jax.viz.player import write_player
 

@@ -13,8 +13,8 @@ when it is used.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, Skipped, write_result

@@ -37,9 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
-from drivee2e_jax.scenario.records import BoundaryRecord, LaneRecord, MapRecord
 
 __all__ = ["load", "load_map", "FORECAST_CATEGORIES", "SENSOR_CATEGORIES", "MARK_TYPES"]
 

@@ -131,14 +131,16 @@ from __future__ import annotations
 
 import math
 import re
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Mapping, Sequence, Union
+from typing import Union
 
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.records import (
+from drivee2e_jax.records import (
     BEHAVIORS,
     CATEGORIES,
     MARKINGS,
@@ -151,6 +153,8 @@ from drivee2e_jax.scenario.records import (
     SuiteRecord,
     TrackRecord,
 )
+from drivee2e_jax.scenario import curation
+from drivee2e_jax.scenario.schema import write_suite
 
 __all__ = [
     "ImportOptions", "Skipped", "ImportResult", "RawTrack", "Resampled", "TrackIds",
@@ -361,7 +365,7 @@ class Converted:
     and the fraction of written samples that are interpolated (not measured)."""
 
     tracks: list[TrackRecord]
-    ids: "TrackIds"
+    ids: TrackIds
     skipped: list[Skipped]
     gap_tracks: int
     interpolated_fraction: float
@@ -574,7 +578,6 @@ def select_ego(tracks: Sequence[TrackRecord], map_rec: MapRecord, num_steps: int
     wins (ties: lowest track id). Returns the track (or None) and the reason
     each other vehicle was rejected; a candidate rejected only for
     plausibility has a reason starting with ``PLAUSIBILITY_PREFIX``."""
-    from drivee2e_jax.scenario import curation
 
     reasons: dict[int, str] = {}
     best: tuple[float, int, TrackRecord] | None = None
@@ -875,7 +878,6 @@ def write_result(result: ImportResult, out: str | Path, *, name: str, force: boo
     With no scenario the error names how many items were skipped and the first
     one's source and reason (usually the whole story: a file without an ego).
     """
-    from drivee2e_jax.scenario.schema import write_suite
 
     if not result.scenarios:
         n = len(result.skipped)
@@ -930,7 +932,6 @@ def parse_xml(path: Path, what: str, root_tag: str):
 
     ``what`` names the format in the errors ("CommonRoad", "OSM", ...).
     """
-    import xml.etree.ElementTree as ET
 
     try:
         root = ET.parse(path).getroot()

@@ -55,10 +55,10 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import MapRecord, ObstacleRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
 from drivee2e_jax.scenario.importers.lanelets import Lanelet, StopLineSpec, assemble_map
-from drivee2e_jax.scenario.records import MapRecord, ObstacleRecord
 
 __all__ = ["CATEGORY_TABLE", "MARKING_TABLE", "read_scenario", "light_states", "load"]
 

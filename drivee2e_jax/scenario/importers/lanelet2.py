@@ -34,16 +34,16 @@ from __future__ import annotations
 import math
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import BoundaryRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.lanelets import Lanelet, StopLineSpec, assemble_map, orient_bounds
-from drivee2e_jax.scenario.records import BoundaryRecord, MapRecord
 
 __all__ = ["OsmData", "utm_projector", "read_osm", "marking_of", "load_map", "signal_group_of_name"]
 

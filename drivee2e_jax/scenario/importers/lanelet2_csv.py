@@ -52,10 +52,10 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
 from drivee2e_jax.scenario.importers.lanelet2 import load_map, signal_group_of_name
-from drivee2e_jax.scenario.records import MapRecord
 
 __all__ = ["CATEGORY_TABLE", "DEFAULT_WINDOW_S", "Recording", "recordings_of", "find_map",
            "find_recordings", "import_recording", "read_tracks", "read_signal_events", "signal_states", "load"]

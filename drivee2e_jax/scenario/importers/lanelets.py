@@ -33,8 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord, StopLineRecord
 from drivee2e_jax.scenario.importers.common import infer_successors
-from drivee2e_jax.scenario.records import BoundaryRecord, LaneRecord, MapRecord, StopLineRecord
 
 __all__ = [
     "Lanelet",

@@ -56,11 +56,11 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult
 from drivee2e_jax.scenario.importers.lanelet2_csv import find_map, import_recording, recordings_of
 from drivee2e_jax.scenario.importers.lanelets import Lanelet, assemble_map
-from drivee2e_jax.scenario.records import MapRecord
 
 __all__ = ["STEP_M", "Geometry", "eval_geometry", "reference_line", "read_map", "load"]
 

@@ -35,6 +35,8 @@ Conversion:
 
 from __future__ import annotations
 
+import codecs
+import collections
 import math
 import pickle
 from pathlib import Path
@@ -43,9 +45,9 @@ from typing import Any
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
-from drivee2e_jax.scenario.records import BoundaryRecord, LaneRecord, MapRecord
 
 __all__ = ["load", "safe_load", "SafeUnpickler", "ALLOWED_GLOBALS", "TYPE_CATEGORIES", "FINE_CATEGORIES",
            "LINE_MARKINGS"]
@@ -55,7 +57,6 @@ def _codecs_encode(obj: Any, encoding: str = "utf-8", errors: str = "strict") ->
     """``_codecs.encode`` restricted to latin-1 (what numpy uses for array bytes under protocol 2)."""
     if encoding not in ("latin1", "latin-1", "iso-8859-1"):
         raise pickle.UnpicklingError(f"refused _codecs.encode with encoding {encoding!r}")
-    import codecs
 
     return codecs.encode(obj, encoding, errors)
 
@@ -81,7 +82,6 @@ def _numpy_globals() -> dict[tuple[str, str], Any]:
 
 
 def _allowed() -> dict[tuple[str, str], Any]:
-    import collections
 
     out = _numpy_globals()
     for name, obj in (("set", set), ("frozenset", frozenset), ("list", list), ("dict", dict), ("tuple", tuple),

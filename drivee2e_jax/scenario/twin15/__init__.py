@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from ..records import SuiteRecord
+from drivee2e_jax.records import SuiteRecord
 
 #: Bump whenever the generated suite changes (caches key on it).
 VERSION = "1"

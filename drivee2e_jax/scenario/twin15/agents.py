@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..records import CATEGORIES
+from drivee2e_jax.records import CATEGORIES
 
 CAT = {name: i for i, name in enumerate(CATEGORIES)}
 

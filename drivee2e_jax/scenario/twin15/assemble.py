@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..records import CATEGORIES, RouteRecord, ScenarioRecord, TrackRecord
+from drivee2e_jax.records import CATEGORIES, RouteRecord, ScenarioRecord, TrackRecord
+
 from .labels import LOG_STEPS, Cut
 from .plan import DT, Plan
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -17,7 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..records import ScenarioRecord, SuiteRecord
+from drivee2e_jax.records import ScenarioRecord, SuiteRecord
+
 from .assemble import scenario_record
 from .egoplan import capable
 from .labels import FINISH_MARGIN, LOG_STEPS, Miss, cut
@@ -114,7 +116,6 @@ def _run(seed: int, metas: list[Meta], todo: list[int]) -> _Outcome:
 
 def _jax_backend_live() -> bool:
     """Whether JAX has started its backend (and with it its thread pools)."""
-    import sys
 
     if "jax" not in sys.modules:
         return False

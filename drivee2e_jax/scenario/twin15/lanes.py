@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..records import LaneRecord
+from drivee2e_jax.records import LaneRecord
+
 from .curves import resample
 from .legs import BIKE_WIDTH, Leg, taper_weight
 from .movements import Movement

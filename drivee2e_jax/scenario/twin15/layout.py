@@ -6,11 +6,12 @@ the ``MapRecord`` plus the generator-side facts the traffic model needs
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
-from ..records import MapRecord, StopLineRecord
+from drivee2e_jax.records import MapRecord, StopLineRecord
+
 from .lanes import LaneSet, build_lanes
 from .legs import Corner, Leg, make_legs
 from .markings import build_boundaries
@@ -73,7 +74,7 @@ def _meta(spec: IntersectionSpec, legs: list[Leg], moves: list[Movement], sig: S
     }
 
 
-@lru_cache(maxsize=None)
+@cache
 def build_layout(map_id: str) -> Layout:
     """The layout of intersection ``map_id`` ("I01".."I15"); cached (maps do
     not depend on the seed). Treat the result as read-only."""

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..records import BoundaryRecord
+from drivee2e_jax.records import BoundaryRecord
+
 from .curves import chunk, resample
+from .lanes import MAX_LANE_POINTS
 from .legs import BIKE_WIDTH, POCKET_LENGTH, TAPER_LENGTH, Corner, Leg, kerb_polyline, taper_weight
 from .legs import leg_line as _leg_line
-from .lanes import MAX_LANE_POINTS
 
 #: Length of the solid approach lines before a stop line, m.
 SOLID_APPROACH = 30.0

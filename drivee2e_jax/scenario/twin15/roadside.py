@@ -9,7 +9,8 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from ..records import ObstacleRecord
+from drivee2e_jax.records import ObstacleRecord
+
 from .curves import line_intersection, polygon_ccw
 from .legs import SIDEWALK, Corner, Leg
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..records import SPLITS
+from drivee2e_jax.records import SPLITS
 
 PER_200 = {"COV": 36, "IPC": 34, "UT": 5, "YLW": 17, "STR": 36, "LFT": 26, "RT": 24, "STP": 22}
 SPLIT_SCALE = {"train": 2, "val": 1, "test": 1}

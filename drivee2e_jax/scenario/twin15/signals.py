@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..records import SignalPhase
+from drivee2e_jax.records import SignalPhase
+
 from .legs import Leg
 from .movements import LEFT, STRAIGHT, UTURN, Movement
 from .specs import IntersectionSpec

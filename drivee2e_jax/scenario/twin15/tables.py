@@ -10,7 +10,7 @@ signal groups are the map's own ids.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -45,7 +45,7 @@ class Tables:
     path_outer: np.ndarray  # (P,) bool: outer crosswalk track (cyclists allowed)
     seg_lane: np.ndarray  # (P, KS) global lane ids, -1 padded
     seg_start: np.ndarray  # (P, KS + 1) arc starts, +inf padded
-    zones: "ZoneTable"
+    zones: ZoneTable
     sib_lane: np.ndarray  # (NL, KB) global lane ids, -1 padded
     sib_len: np.ndarray  # (NL, KB)
     lane_offset: np.ndarray  # (I,)
@@ -127,7 +127,7 @@ def _zone_table(nets: list[Network], path_offset: np.ndarray, inter: np.ndarray,
 MOVE_CODE = {"straight": 0, "left": 1, "right": 2, "uturn": 3}
 
 
-@lru_cache(maxsize=None)
+@cache
 def build_tables(dt: float = 0.1) -> Tables:
     nets = [build_network(build_layout(sp.map_id)) for sp in SPECS]
     paths = [(i, j, p) for i, n in enumerate(nets) for j, p in enumerate(n.paths)]

@@ -141,7 +141,7 @@ class _Sides:
     opp: np.ndarray  # local ids of the opposite sides
 
     @classmethod
-    def of(cls, zt: ZoneTable, paths: np.ndarray, inters: np.ndarray) -> "_Sides":
+    def of(cls, zt: ZoneTable, paths: np.ndarray, inters: np.ndarray) -> _Sides:
         zs = zt.path_zs[paths]
         valid = zs >= 0
         zs = np.maximum(zs, 0)

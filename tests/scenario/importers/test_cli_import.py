@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_opendrive import JUNCTION, _interaction_csv
+from test_scenarionet import scenario_dict, write_pkl
 
 from drivee2e_jax import cli
 from drivee2e_jax.scenario.schema import read_suite
-from test_opendrive import JUNCTION, _interaction_csv
-from test_scenarionet import scenario_dict, write_pkl
 
 DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data samples not found at {DATA}")

@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.records import LaneRecord, MapRecord, ScenarioRecord, TrackRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack
-from drivee2e_jax.scenario.records import LaneRecord, MapRecord, ScenarioRecord, TrackRecord
 from drivee2e_jax.scenario.schema import read_suite
 
 DT = 0.1

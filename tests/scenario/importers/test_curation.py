@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from drivee2e_jax.records import LaneRecord, MapRecord, RouteRecord, ScenarioRecord, TrackRecord
 from drivee2e_jax.scenario import curation
-from drivee2e_jax.scenario.records import LaneRecord, MapRecord, RouteRecord, ScenarioRecord, TrackRecord
 
 DT = 0.1
 N = 50

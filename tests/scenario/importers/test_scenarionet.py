@@ -90,7 +90,7 @@ def test_tiny_scenario_converts(tmp_path):
 
 
 def validate_records_ok(r) -> bool:
-    from drivee2e_jax.scenario.records import SuiteRecord
+    from drivee2e_jax.records import SuiteRecord
 
     problems = validate_records(SuiteRecord("t", "1", r.maps, r.scenarios))
     assert problems == [], problems[:3]

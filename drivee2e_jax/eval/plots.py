@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from drivee2e_jax.files import atomic_write
+
 #: Distinct, colour-blind-friendly enough for up to 10 policies (tab10).
 _COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
            "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
@@ -113,8 +115,6 @@ def _color(i: int) -> str:
 def _save(fig, path: Path, dpi: int = 130) -> None:
     """Render ``fig`` with Agg and write the PNG atomically."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    from drivee2e_jax.io.results import atomic_write
 
     FigureCanvasAgg(fig)
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=dpi), binary=True)

@@ -16,7 +16,7 @@ Where the numbers come from:
   ``summary.json`` exactly as the run wrote and printed them.
 * Several repetitions (rows carry a ``repetition`` or ``seed`` column with
   more than one value): every aggregate is computed per repetition from
-  ``scenarios.csv`` with ``bench.summarize``, then shown as
+  ``scenarios.csv`` with ``summary.summarize``, then shown as
   ``mean ± sample std over repetitions``.
 
 Per-scenario columns of ``scenarios.csv`` are classified generically, so new
@@ -33,8 +33,10 @@ import json
 import math
 from pathlib import Path
 
-from drivee2e_jax.bench import BEHAVIOR_ORDER
-from drivee2e_jax.io.results import BASE_COLUMNS, atomic_write_text
+from drivee2e_jax.eval import plots
+from drivee2e_jax.eval.results import BASE_COLUMNS
+from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, summarize
+from drivee2e_jax.files import atomic_write_text
 from drivee2e_jax.metrics.episode import COUNT_COLUMNS
 
 #: Integer columns that are event counts (totals reported), besides the
@@ -75,7 +77,6 @@ class _Run:
 
 def write_report(run_dir: Path) -> Path:
     """Write ``report.md`` and ``plots/*.png`` into ``run_dir``; returns the report's path."""
-    from drivee2e_jax.io import plots
 
     run_dir = Path(run_dir)
     run = _Run(run_dir)
@@ -126,8 +127,7 @@ def classify_columns(columns: list[str], rows: list[dict]) -> tuple[list[str], l
 
 
 def _rep_summaries(run: _Run, summary: dict) -> dict[str, list[dict]]:
-    """Per policy, one ``bench.summarize`` entry per repetition (policies missing a repetition skip it)."""
-    from drivee2e_jax.bench import summarize
+    """Per policy, one ``summary.summarize`` entry per repetition (policies missing a repetition skip it)."""
 
     out: dict[str, list[dict]] = {p: [] for p in run.policies}
     for rep in run.reps:

@@ -24,9 +24,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
+import jax
 import numpy as np
+from jax.experimental import multihost_utils
 
 from drivee2e_jax.errors import DriveE2EError
 
@@ -48,7 +51,6 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
     Returns True when more than one process takes part. Calling it again in
     an initialized process is a no-op.
     """
-    import jax
 
     coordinator = coordinator or os.environ.get(ENV_COORDINATOR) or None
     num_processes = _int_arg(num_processes, ENV_NUM_PROCESSES, "--num-processes")
@@ -91,7 +93,6 @@ def process_shard(n: int, process_index: int | None = None, process_count: int |
     ``n % process_count`` first processes take one scenario more than the
     others, so the parts differ by at most one and cover ``0..n-1`` once, in order.
     Defaults: ``jax.process_index()`` / ``jax.process_count()``."""
-    import jax
 
     index = jax.process_index() if process_index is None else process_index
     count = jax.process_count() if process_count is None else process_count
@@ -104,14 +105,12 @@ def process_shard(n: int, process_index: int | None = None, process_count: int |
 
 def process_count() -> int:
     """Processes in the run (1 without ``initialize``)."""
-    import jax
 
     return jax.process_count()
 
 
 def is_root() -> bool:
     """True on process 0 (and in a single-process run)."""
-    import jax
 
     return jax.process_index() == 0
 
@@ -119,11 +118,9 @@ def is_root() -> bool:
 def allgather_json(obj: Any) -> list:
     """Every process's ``obj`` (JSON-serialisable), in process order, on every
     process; ``[obj]`` in a single-process run."""
-    import jax
 
     if jax.process_count() == 1:
         return [obj]
-    from jax.experimental import multihost_utils
 
     blob = np.frombuffer(json.dumps(obj, allow_nan=True).encode(), np.uint8)
     sizes = np.asarray(multihost_utils.process_allgather(np.array([blob.size], np.int64))).reshape(-1)
@@ -155,7 +152,6 @@ def gather_result(res):
     (scenario order: shards are contiguous; grouped by repetition), the
     slowest process's times and ``logs=None`` (step logs stay per process).
     ``res`` itself in a single-process run."""
-    import jax
 
     if jax.process_count() == 1:
         return res

@@ -12,7 +12,10 @@ folder, or one ``checkpoints/<epoch>``.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -20,9 +23,15 @@ import jax
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.io.results import atomic_write_json
+from drivee2e_jax.files import atomic_write_json
+from drivee2e_jax.observe.bev import BevConfig
 
 META = "meta.json"
+#: A demonstrations dataset folder's manifest (``train.dataset``) and its format.
+DATA_MANIFEST = "manifest.json"
+DATA_FORMAT = 1
+#: The BEV of datasets whose manifest predates recording it.
+DEFAULT_BEV = BevConfig()
 
 
 def _checkpointer():
@@ -39,7 +48,6 @@ def save(run_dir: str | Path, epoch: int, state: dict, meta: dict) -> Path:
     """Write ``state`` (a pytree: params, opt_state, step) and ``meta`` (JSON)
     as the checkpoint of ``epoch``; returns its folder. Overwrites an
     incomplete or existing checkpoint of the same epoch."""
-    import shutil
 
     d = checkpoint_dir(run_dir, epoch).resolve()
     if d.exists():
@@ -101,3 +109,37 @@ def resolve(path: str | Path) -> Path:
 def load_params(path: str | Path):
     """The model parameters stored at ``path`` (see ``resolve``)."""
     return restore(resolve(path))["params"]
+
+
+def bev_of_manifest(manifest: dict) -> BevConfig | None:
+    """The BEV a dataset was rendered at (None: no BEV); manifests from before
+    the size was recorded used the default 128 x 128 at 0.5 m/px."""
+    if "bev" not in manifest.get("sensors", ()):
+        return None
+    b = manifest.get("bev") or {}
+    return dataclasses.replace(DEFAULT_BEV, height=int(b.get("height", DEFAULT_BEV.height)),
+                               width=int(b.get("width", DEFAULT_BEV.width)),
+                               resolution=float(b.get("resolution", DEFAULT_BEV.resolution)))
+
+
+def training_bev(meta: dict) -> BevConfig | None:
+    """The BEV the training data of a checkpoint (its ``meta.json``) was
+    rendered at: ``meta["data_bev"]`` (the manifest's ``"bev"``) when the
+    training loop stored one, else the manifest of ``meta["config"]["data"]``
+    when that folder still holds the data trained on (same digest); None when
+    unknown or without a BEV."""
+    if meta.get("data_bev"):
+        return bev_of_manifest({"sensors": ["bev"], "bev": meta["data_bev"]})
+    data = (meta.get("config") or {}).get("data")
+    if not data:
+        return None
+    try:
+        raw = (Path(data) / DATA_MANIFEST).read_bytes()
+        manifest = json.loads(raw)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(manifest, dict) or manifest.get("format") != DATA_FORMAT:
+        return None
+    if meta.get("data_digest") not in (None, hashlib.sha256(raw).hexdigest()):
+        return None
+    return bev_of_manifest(manifest)

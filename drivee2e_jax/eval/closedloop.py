@@ -9,18 +9,21 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from drivee2e_jax.io.results import event_key
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.eval.results import event_key
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.metrics import finegrained
 from drivee2e_jax.observe import sensors
+from drivee2e_jax.observe.bev import bev_label
 from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, shard_rollout_inputs
-from drivee2e_jax.sim import Simulator, SimConfig
+from drivee2e_jax.sim import SimConfig, Simulator
 
 
 @dataclasses.dataclass
@@ -164,8 +167,6 @@ def with_policy_sensors(config: SimConfig, policy) -> SimConfig:
     the BEV of its training data) refuses a ``config`` that sets another
     size for it: a one-line DriveE2EError, not a silently different input.
     """
-    from drivee2e_jax.errors import DriveE2EError
-    from drivee2e_jax.models.base import bev_label
 
     required = tuple(getattr(policy, "required_sensors", ()) or ())
     if not required:

@@ -45,9 +45,9 @@ from flax import struct
 
 from drivee2e_jax import geometry, replay
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.evaluation import device_batch, with_policy_sensors
-from drivee2e_jax.observe import sensors
+from drivee2e_jax.eval.closedloop import device_batch, with_policy_sensors
 from drivee2e_jax.metrics import openloop as olm
+from drivee2e_jax.observe import sensors
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Controls, Waypoints
 

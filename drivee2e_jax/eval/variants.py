@@ -17,11 +17,11 @@ it is the first hit of at least one pixel of the surround camera rig
 at its logged pose of step k and every agent at its logged sample of step
 k. The masks are computed for a packed batch in blocks of scenarios x steps
 (one jitted vmap over both, one compilation) and cached under
-``$DRIVEE2E_CACHE/visibility/`` (``suite.cache_dir``), keyed by a digest of
+``$DRIVEE2E_CACHE/visibility/`` (``files.cache_dir``), keyed by a digest of
 the arrays they depend on (tracks, ego, obstacles) and the sensor config:
 a second run of the same variant never recomputes them.
 
-    from drivee2e_jax.scenario.variants import suite_variant
+    from drivee2e_jax.eval.variants import suite_variant
     var = suite_variant(load_suite("twin15"), "val", "visible_vehicles")
     evaluate(policy, var.batch, None)
 """
@@ -34,7 +34,7 @@ import hashlib
 import json
 import logging
 import re
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -42,11 +42,13 @@ import numpy as np
 
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import atomic_write, cache_dir
 from drivee2e_jax.observe import camera, raycast, visibility
+from drivee2e_jax.records import CATEGORIES, SuiteRecord
 from drivee2e_jax.replay import AgentStates
 from drivee2e_jax.scenario.filters import filter_invisible, filter_invisible_packed
 from drivee2e_jax.scenario.pack import PackedBatch, flatten_scenario
-from drivee2e_jax.scenario.records import CATEGORIES, SuiteRecord
+from drivee2e_jax.scenario.suite import load_suite
 
 __all__ = ["VARIANTS", "VisibilityConfig", "Variant", "check_variant", "reference_visibility",
            "cached_visibility", "apply_variant", "suite_variant", "variant_records"]
@@ -165,8 +167,6 @@ def cached_visibility(batch: PackedBatch, label: str, cfg: VisibilityConfig = Vi
     caching off (``DRIVEE2E_CACHE=off``) the masks are always computed. A
     cache file that does not match is recomputed and replaced.
     """
-    from drivee2e_jax.io.results import atomic_write
-    from drivee2e_jax.scenario.suite import cache_dir
 
     root = cache_dir()
     key = _digest(batch, cfg)
@@ -265,7 +265,6 @@ def apply_variant(batch: PackedBatch, name: str, label: str = "batch", cfg: Visi
 def suite_variant(suite, split: str | None, name: str, cfg: VisibilityConfig = VisibilityConfig(),
                   progress: Callable[[int, int], None] | None = None) -> Variant:
     """Split ``split`` of ``suite`` (a ``Suite``, name or folder) as variant ``name``."""
-    from drivee2e_jax.scenario.suite import load_suite
 
     check_variant(name)
     suite = load_suite(suite)
@@ -276,7 +275,6 @@ def variant_records(suite, split: str | None, name: str, cfg: VisibilityConfig =
     """The records of ``split`` as variant ``name`` (``filters.filter_invisible``
     with the same cached masks), e.g. to write a variant suite folder with
     ``schema.write_suite``. Needs the suite's records (twin15 generates them)."""
-    from drivee2e_jax.scenario.suite import load_suite
 
     check_variant(name)
     suite = load_suite(suite)

@@ -37,12 +37,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable
+from collections.abc import Callable
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from drivee2e_jax import infractions, replay
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.types import Command, SignalState
+from drivee2e_jax.scenario.pack import PackedBatch
+from drivee2e_jax.types import Category, Command, EgoState, SignalState
 
 #: driving_in_traffic: a logged vehicle ahead within this distance, m ...
 TRAFFIC_FRONT_M = 50.0
@@ -89,11 +93,6 @@ def logged_front_distance(packed) -> np.ndarray:
     """(B, T) m: distance from the LOGGED ego to the nearest vehicle ahead in
     its lane corridor (``infractions.front_distance``), inf where none or
     where the ego is not logged."""
-    import jax
-    import jax.numpy as jnp
-
-    from drivee2e_jax import infractions, replay
-    from drivee2e_jax.types import Category, EgoState
 
     def one(scn):
         tr = scn.tracks
@@ -132,7 +131,6 @@ def _no_turns(packed) -> np.ndarray:
 
 def _empty_roads(packed):
     """Non-ego agents removed, signals off."""
-    from drivee2e_jax.scenario.pack import PackedBatch
 
     scn = packed.scenario
     a = np.asarray(scn.tracks.valid).shape[1]

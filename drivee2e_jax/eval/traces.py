@@ -42,14 +42,35 @@ from __future__ import annotations
 
 import base64
 import dataclasses
+import io
 import json
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
+import jax
 import numpy as np
 
+from drivee2e_jax import replay
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.eval.closedloop import device_batch, init_params, with_policy_sensors
+from drivee2e_jax.eval.tasks import apply_task, get_task
+from drivee2e_jax.eval.variants import apply_variant
+from drivee2e_jax.geometry import from_frame
+from drivee2e_jax.metrics import episode as ep
+from drivee2e_jax.observe import lidar as lidar_mod
+from drivee2e_jax.observe import raycast
+from drivee2e_jax.observe import sensors as sensors_mod
+from drivee2e_jax.observe.bev import BevConfig, unpack_bits
+from drivee2e_jax.observe.lidar import LidarConfig
+from drivee2e_jax.observe.sensors import SensorConfig
+from drivee2e_jax.observe.vector import ObsConfig
+from drivee2e_jax.policy import load_policy
+from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk
+from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.sim import SimConfig, Simulator, score_preset
+from drivee2e_jax.types import Waypoints, to_numpy
 
 #: Sensors a trace can render (``trace_episodes(sensors=...)``).
 TRACE_SENSORS = ("bev", "lidar")
@@ -61,9 +82,6 @@ def default_sensor_config(sensors: Sequence[str] = TRACE_SENSORS):
     """The trace's ``SensorConfig``: 128x128 BEV at 0.5 m/px (default channels)
     and a light 16-channel x 180-bin LiDAR (2880 beams; a file per episode
     stays ~10 MB), only those named in ``sensors``."""
-    from drivee2e_jax.observe.bev import BevConfig
-    from drivee2e_jax.observe.lidar import LidarConfig
-    from drivee2e_jax.observe.sensors import SensorConfig
 
     bad = [s for s in sensors if s not in TRACE_SENSORS]
     if bad:
@@ -266,7 +284,6 @@ def stored_rows(run: RunRecord) -> dict[str, dict]:
 
 
 def _load_run_policy(run: RunRecord):
-    from drivee2e_jax.policy import load_policy
 
     path = run.data.get("policy_path")
     if not path:
@@ -279,8 +296,6 @@ def _load_run_policy(run: RunRecord):
 
 def _run_packed(run: RunRecord):
     """(suite, the packed batch the bench evaluated: task-filtered, limited)."""
-    from drivee2e_jax.scenario import load_suite
-    from drivee2e_jax.tasks import apply_task, get_task
 
     info = run.info
     suite = load_suite(info["suite"])
@@ -293,7 +308,6 @@ def _run_packed(run: RunRecord):
     packed = packed.select(np.arange(n))
     variant = info.get("variant", "complete")
     if variant != "complete":  # agents removed as the bench removed them (same mask cache label)
-        from drivee2e_jax.scenario.variants import apply_variant
 
         tag = "" if task == "route_navigation" else f"-{task}"
         packed = apply_variant(packed, variant, f"{suite.name}-{info['split']}{tag}").batch
@@ -376,9 +390,6 @@ class RunSettings:
 
 def _run_settings(run: RunRecord) -> RunSettings:
     """``RunSettings`` of ``run.json`` (as ``bench.run_bench`` builds them)."""
-    from drivee2e_jax.observe.vector import ObsConfig
-    from drivee2e_jax.rollout import ControlTiming
-    from drivee2e_jax.sim import SimConfig, score_preset
 
     info = run.info
     try:
@@ -392,7 +403,6 @@ def _run_settings(run: RunRecord) -> RunSettings:
 
 
 def _tracing_rollout_cls():
-    from drivee2e_jax.rollout import Rollout
 
     class TracingRollout(Rollout):
         """A Rollout whose scan also emits, per step, the action applied and
@@ -422,13 +432,6 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     actions (T_pad steps; None for a controls policy), "driving_score" (len(rows),),
     "batch" the numpy ``Scenario`` rows}.
     """
-    import jax
-
-    from drivee2e_jax.evaluation import device_batch, init_params, with_policy_sensors
-    from drivee2e_jax.metrics import episode as ep
-    from drivee2e_jax.observe import sensors as sensors_mod
-    from drivee2e_jax.rollout import balanced_chunk
-    from drivee2e_jax.sim import Simulator
 
     try:
         cfg = with_policy_sensors(settings.sim, pol)
@@ -481,7 +484,6 @@ def trace_bev_sensors(policy_sensors, sensor_cfg):
     policy's own (``policy_sensors``, the rollout's ``SimConfig.sensors``)
     when it sees a BEV, so each frame IS the policy's observation; else the
     BEV of ``sensor_cfg`` (the trace's). None when ``sensor_cfg`` asks for no BEV."""
-    from drivee2e_jax.observe.sensors import SensorConfig
 
     if sensor_cfg.bev is None:
         return None
@@ -495,11 +497,6 @@ def _frame_fn(sim, bev_sim, lidar_cfg, scene_cfg):
     sensors: the BEV is ``bev_sim.observe(...).bev`` of each traced state
     (exactly the policy's observation when ``bev_sim`` is the rollout's
     simulator), the LiDAR a point cloud of ``lidar_cfg``."""
-    import jax
-
-    from drivee2e_jax import replay
-    from drivee2e_jax.observe import lidar as lidar_mod
-    from drivee2e_jax.observe import raycast
 
     def one(scenario, ctx, state, assets):
         state = state.replace(ctx=ctx)
@@ -520,7 +517,6 @@ def _frame_fn(sim, bev_sim, lidar_cfg, scene_cfg):
 
 def _row(tree, i: int):
     """Row ``i`` of every leaf of a batched (numpy) pytree."""
-    import jax
 
     return jax.tree_util.tree_map(lambda a: a[i], tree)
 
@@ -528,9 +524,6 @@ def _row(tree, i: int):
 def _frames(sim_out: dict, suite, packed, rows: np.ndarray, sensor_cfg):
     """(the Simulator the BEV frames come from or None, per chosen episode:
     numpy frames over the padded trace length (one compile))."""
-    from drivee2e_jax.observe import sensors as sensors_mod
-    from drivee2e_jax.sim import Simulator
-    from drivee2e_jax.types import to_numpy
 
     sim = sim_out["sim"]
     bev_sensors = trace_bev_sensors(sim.config.sensors, sensor_cfg)
@@ -598,11 +591,6 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
                    bev_cfg) -> EpisodeTrace:
     """Trace of chosen row ``j`` (packed row ``row``); ``bev_cfg``: the
     ``BevConfig`` of ``frames``' BEV (None: no BEV)."""
-    from drivee2e_jax.geometry import from_frame
-    from drivee2e_jax.metrics import episode as ep
-    from drivee2e_jax.types import Waypoints
-
-    import jax
 
     log = _row(sim_out["logs"], j)
     n = _episode_length(np.asarray(log.active))
@@ -675,7 +663,6 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
         reproduced=bool(abs(ds - stored_ds) <= DS_TOLERANCE),
     )
     if "bev" in fr:
-        from drivee2e_jax.observe.bev import unpack_bits
 
         names = bev_cfg.channel_names
         bits = np.asarray(unpack_bits(cut(fr["bev"]), len(names))) > 0.5
@@ -796,7 +783,6 @@ def bev_rgb(bev: dict, k: int) -> np.ndarray:
 
 def png_bytes(rgb: np.ndarray) -> bytes:
     """PNG file bytes of an (H, W, 3) uint8 image (matplotlib's writer)."""
-    import io
 
     from matplotlib import image as mpimg
 

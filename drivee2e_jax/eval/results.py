@@ -18,12 +18,12 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
-import tempfile
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import atomic_write_json, atomic_write_text, json_default
+
 
 #: Columns every per-scenario row has, in CSV order (count columns follow).
 def event_key(row: dict) -> str:
@@ -50,51 +50,6 @@ BASE_COLUMNS = (
     "episode_s",
     "eval_time_s",
 )
-
-
-def atomic_write(path: Path, write, binary: bool = False) -> None:
-    """Call ``write(f)`` on a temp file next to ``path``, then ``os.replace`` it,
-    so readers see the old or the new file, never half of one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="")) as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _umask() -> int:
-    """The process umask (read by setting and restoring it)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (see ``atomic_write``)."""
-    atomic_write(path, lambda f: f.write(text))
-
-
-def atomic_write_json(path: Path, obj: Any) -> None:
-    atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=False, allow_nan=False, default=_json_default) + "\n")
-
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def rows_to_csv(rows: list[dict], columns: Iterable[str]) -> str:
@@ -138,7 +93,7 @@ class RunDir:
                     old = json.loads(meta.read_text())
                 except json.JSONDecodeError as e:
                     raise DriveE2EError(f"{meta}: unreadable ({e}); use --force to start over") from e
-                if old != json.loads(json.dumps(run_info, default=_json_default)):
+                if old != json.loads(json.dumps(run_info, default=json_default)):
                     diff = sorted(k for k in set(old) | set(run_info) if old.get(k) != run_info.get(k))
                     raise DriveE2EError(
                         f"{self.path}: holds results of a different run (differs in {', '.join(diff)}); "
