@@ -8,11 +8,11 @@ __version__ = "0.1.0"
 
 import importlib
 
-from drivee2e_jax.scenario import load_suite  # noqa: E402
-
-# The JAX-side public names load on first use, so `drivee2e suite ...` and
-# host-side tooling do not pay for compiling-related imports.
+# The public names load on first use: `import drivee2e_jax` imports neither JAX
+# nor Flax, so the CLI starts fast and the JAX-free parts (host policies, the
+# policy server) run in environments without JAX.
 _LAZY = {
+    "load_suite": ("drivee2e_jax.scenario", "load_suite"),
     "Simulator": ("drivee2e_jax.sim", "Simulator"),
     "SimConfig": ("drivee2e_jax.sim", "SimConfig"),
     "evaluate": ("drivee2e_jax.eval.closedloop", "evaluate"),
@@ -24,11 +24,10 @@ _LAZY = {
 
 def __getattr__(name):
     if name in _LAZY:
-
         mod, attr = _LAZY[name]
         m = importlib.import_module(mod)
         return m if attr is None else getattr(m, attr)
     raise AttributeError(f"module 'drivee2e_jax' has no attribute {name!r}")
 
 
-__all__ = ["load_suite", *_LAZY]
+__all__ = list(_LAZY)

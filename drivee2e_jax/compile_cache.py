@@ -38,7 +38,10 @@ def enable() -> Path | None:
     path = compile_cache_dir()
     if path is None:
         return None
-    import jax
+    try:  # `drivee2e --help` and the JAX-free serve-policy enable the cache without importing JAX eagerly
+        import jax  # noqa: PLC0415
+    except ImportError:  # a policy server in an environment without JAX
+        return None
 
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_S)

@@ -29,7 +29,9 @@ extrapolated past the last waypoint) and command the front-wheel angle whose
 rear-axle arc passes through it. On an exact kinematic bicycle this tracks
 circles without steady-state error and needs no integrator.
 
-Both use ``params.vehicle`` (the Simulator sets it to its dynamics).
+Both use ``params.vehicle`` (the Simulator sets it to ``SimConfig.dynamics``,
+the parameters of its ``dynamics.DynamicsModel``): the bicycle's drag law and
+geometry, whichever model moves the ego.
 Unbatched and jit-friendly; the brake decision is a hard switch (as in TCP),
 so the controls are not differentiable through it.
 """
@@ -102,8 +104,9 @@ class ControllerState:
     errors: Array
 
 
-def init_controller_state(params: ControllerParams = ControllerParams()) -> ControllerState:
-    """A fresh ControllerState (zero error history)."""
+def init_controller_state(params: ControllerParams | None = None) -> ControllerState:
+    """A fresh ControllerState (zero error history); ``params`` default: ``ControllerParams()``."""
+    params = ControllerParams() if params is None else params
     return ControllerState(errors=jnp.zeros((params.window,), jnp.float32))
 
 

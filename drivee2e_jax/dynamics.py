@@ -20,9 +20,18 @@ stops at 0. A standing car does not creep: the throttle must beat
 
 Everything is unbatched, jit/vmap/grad friendly: no sqrt or atan2 at points
 the ego reaches (speed 0, zero steer), so gradients stay finite.
+
+The simulator does not call these functions directly: it goes through a
+``DynamicsModel`` (``SimConfig.dynamics_model``, default
+``KinematicBicycle()``, the model of this module). Another ego model is a
+frozen, hashable class with the same three methods (``initial_state``,
+``step``, ``inverse``), registered in ``DYNAMICS_MODELS``.
 """
 
 from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import jax.numpy as jnp
 from flax import struct
@@ -239,3 +248,75 @@ def ego_from_log(xy: Array, yaw: Array, vel: Array, t: Array) -> EgoState:
         yaw_rate=zero,
         t=jnp.asarray(t, jnp.float32),
     )
+
+
+# --------------------------------------------------------------------------
+# The model protocol the simulator goes through
+# --------------------------------------------------------------------------
+
+
+@runtime_checkable
+class DynamicsModel(Protocol):
+    """An ego vehicle model: what ``sim.Simulator`` needs of the ego's motion.
+
+    Implementations are frozen and hashable (they sit in the jit-static
+    ``SimConfig``) and hold no arrays; vehicle parameters come separately as
+    ``params`` (``SimConfig.dynamics``; for the bicycle a ``BicycleParams``).
+    The waypoint controller reads the same ``params`` as
+    ``ControllerParams.vehicle`` (``wheelbase``, ``max_steer``,
+    ``max_accel``, ``max_decel``, ``drag_const``, ``drag_quad``), so a
+    model's params must provide those fields for waypoint policies.
+    Every method is unbatched, pure and jit/vmap friendly.
+
+    Attributes:
+      name: registry name (``DYNAMICS_MODELS``).
+    """
+
+    name: ClassVar[str]
+
+    def initial_state(self, xy: Array, yaw: Array, vel: Array, t: Array) -> EgoState:
+        """Ego state at reset from one log sample: ``xy (2,)`` m, ``yaw ()``
+        rad, ``vel (2,)`` world-frame m/s, ``t ()`` s."""
+        ...
+
+    def step(self, ego: EgoState, controls: Controls, dt: Array, params: Any) -> EgoState:
+        """The ego after ``dt`` s under ``controls`` (throttle, brake [0, 1],
+        steer [-1, 1], already sanitised) held constant. ``accel``,
+        ``steer`` (front-wheel angle, rad) and ``yaw_rate`` are the
+        realised values of the step, ``yaw`` wrapped to (-pi, pi]."""
+        ...
+
+    def inverse(self, ego: EgoState, next_xy: Array, next_yaw: Array, dt: Array, params: Any) -> Controls:
+        """Controls that carry ``ego`` to the logged next pose (``next_xy``
+        (2,) m, ``next_yaw`` () rad) in one ``dt`` step: the log-derived
+        reference action (``types.Privileged.log_controls``)."""
+        ...
+
+
+@dataclasses.dataclass(frozen=True)
+class KinematicBicycle:
+    """The kinematic bicycle of this module as a ``DynamicsModel`` (the
+    default ``SimConfig.dynamics_model``); ``params`` is a ``BicycleParams``.
+    Stateless: every instance is equal and hashes alike."""
+
+    name: ClassVar[str] = "kinematic_bicycle"
+
+    def initial_state(self, xy: Array, yaw: Array, vel: Array, t: Array) -> EgoState:
+        return ego_from_log(xy, yaw, vel, t)
+
+    def step(self, ego: EgoState, controls: Controls, dt: Array, params: BicycleParams) -> EgoState:
+        return step(ego, controls, dt, params)
+
+    def inverse(self, ego: EgoState, next_xy: Array, next_yaw: Array, dt: Array, params: BicycleParams) -> Controls:
+        return inverse(ego, next_xy, next_yaw, dt, params)
+
+
+#: Dynamics models by name.
+DYNAMICS_MODELS: dict[str, DynamicsModel] = {KinematicBicycle.name: KinematicBicycle()}
+
+
+def get_dynamics_model(name: str) -> DynamicsModel:
+    """The registered model called ``name``; ValueError listing the names otherwise."""
+    if name not in DYNAMICS_MODELS:
+        raise ValueError(f"unknown dynamics model {name!r}; expected one of {', '.join(DYNAMICS_MODELS)}")
+    return DYNAMICS_MODELS[name]

@@ -71,17 +71,19 @@ def from_frame(points: Array, origin: Array, yaw: Array) -> Array:
     return rotate(points, yaw) + origin
 
 
-def _cross(a: Array, b: Array) -> Array:
+def cross2(a: Array, b: Array) -> Array:
+    """z of the 2-D cross product a x b, (..., 2) x (..., 2) -> (...)."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def _dot(a: Array, b: Array) -> Array:
+def dot(a: Array, b: Array) -> Array:
+    """Dot product over the last axis, (..., n) x (..., n) -> (...)."""
     return jnp.sum(a * b, axis=-1)
 
 
 def safe_norm(v: Array) -> Array:
     """|v| with a zero (not NaN) gradient at v = 0."""
-    sq = _dot(v, v)
+    sq = dot(v, v)
     ok = sq > _TINY
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
 
@@ -166,7 +168,7 @@ def boxes_overlap(
 # --------------------------------------------------------------------------
 
 
-def _closed_edges(poly: Array, valid: Array) -> tuple[Array, Array, Array]:
+def closed_edges(poly: Array, valid: Array) -> tuple[Array, Array, Array]:
     """Edges of a padded polygon, closed, skipping invalid vertices.
 
     Each invalid vertex is replaced by the previous valid one (cyclically), so
@@ -193,7 +195,7 @@ def point_in_polygon(p: Array, poly: Array, poly_valid: Array) -> Array:
     crossing rule; simple non-convex polygons fine; implicitly closed;
     ``poly_valid (V,)`` masks padding). False with fewer than 3 valid vertices.
     """
-    a, b, ok = _closed_edges(poly, poly_valid)
+    a, b, ok = closed_edges(poly, poly_valid)
     straddles = (a[:, 1] > p[1]) != (b[:, 1] > p[1])
     dy = jnp.where(straddles, b[:, 1] - a[:, 1], 1.0)
     x_cross = a[:, 0] + (p[1] - a[:, 1]) * (b[:, 0] - a[:, 0]) / dy
@@ -214,7 +216,7 @@ def convex_polygon_box_penetration(
     from below). ``-inf`` when the polygon has no valid vertex. Degenerate
     polygons (a segment, a point) are handled as their convex hull.
     """
-    a, b, ok = _closed_edges(poly, poly_valid)
+    a, b, ok = closed_edges(poly, poly_valid)
     normals, nonzero = _unit(jnp.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=-1))
     axes = jnp.concatenate([normals, _box_axes(yaw)])  # (V + 2, 2)
     axis_ok = jnp.concatenate([ok & nonzero, jnp.array([True, True])])
@@ -262,7 +264,7 @@ class PolygonSAT:
 
 def polygon_sat(poly: Array, poly_valid: Array) -> PolygonSAT:
     """Precompute ``PolygonSAT`` for a padded convex polygon (V, 2)."""
-    a, b, ok = _closed_edges(poly, poly_valid)
+    a, b, ok = closed_edges(poly, poly_valid)
     normals, nonzero = _unit(jnp.stack([-(b - a)[:, 1], (b - a)[:, 0]], axis=-1))
     proj = poly @ normals.T  # (V, V)
     hi = jnp.max(jnp.where(poly_valid[:, None], proj, -jnp.inf), axis=0)
@@ -298,14 +300,14 @@ def polygon_sat_box_penetration(sat: PolygonSAT, xy: Array, yaw: Array, lw: Arra
 def point_segment_distance(p: Array, a: Array, b: Array) -> Array:
     """() distance (m) from ``p (2,)`` to the closed segment ``a``-``b``."""
     d = b - a
-    t = jnp.clip(_dot(p - a, d) / jnp.maximum(_dot(d, d), _TINY), 0.0, 1.0)
+    t = jnp.clip(dot(p - a, d) / jnp.maximum(dot(d, d), _TINY), 0.0, 1.0)
     return safe_norm(p - (a + t * d))
 
 
 def segment_distance(p1: Array, p2: Array, q1: Array, q2: Array) -> Array:
     """() distance (m) between closed segments p1-p2 and q1-q2 (0 if they cross)."""
-    cross = (_cross(q2 - q1, p1 - q1) * _cross(q2 - q1, p2 - q1) < 0) & (
-        _cross(p2 - p1, q1 - p1) * _cross(p2 - p1, q2 - p1) < 0
+    cross = (cross2(q2 - q1, p1 - q1) * cross2(q2 - q1, p2 - q1) < 0) & (
+        cross2(p2 - p1, q1 - p1) * cross2(p2 - p1, q2 - p1) < 0
     )
     d = jnp.min(
         jnp.stack(
@@ -371,7 +373,7 @@ def project_to_polyline(p: Array, xy: Array, valid: Array) -> Projection:
     b = jnp.concatenate([jnp.where(seg_ok[:, None], xy[1:], xy[:-1]), xy[-1:]])  # (N, 2)
     d = b - a
     seg_len = safe_norm(d)
-    t = jnp.clip(_dot(p - a, d) / jnp.maximum(_dot(d, d), _TINY), 0.0, 1.0)
+    t = jnp.clip(dot(p - a, d) / jnp.maximum(dot(d, d), _TINY), 0.0, 1.0)
     foot = a + t[:, None] * d
     dist = safe_norm(p - foot)
     i = jnp.argmin(jnp.where(valid, dist, jnp.inf))
@@ -381,7 +383,7 @@ def project_to_polyline(p: Array, xy: Array, valid: Array) -> Projection:
     any_valid = jnp.any(valid)
     return Projection(
         distance=jnp.where(any_valid, dist[i], jnp.inf),
-        lateral=_cross(tangent, p - a[i]) * (seg_len[i] > 0),
+        lateral=cross2(tangent, p - a[i]) * (seg_len[i] > 0),
         arc=cum[i] + t[i] * seg_len[i],
         segment=jnp.where(any_valid, i, -1).astype(jnp.int32),
         heading=jnp.arctan2(tangent[1], tangent[0]),
@@ -410,7 +412,7 @@ def nearest_segment(p: Array, xy: Array, valid: Array) -> tuple[Array, Array]:
         a, b = xy[k], xy[k + 1]
         ok = valid[k] & valid[k + 1]
         dab = b - a
-        t = jnp.clip(_dot(p - a, dab) / jnp.maximum(_dot(dab, dab), _TINY), 0.0, 1.0)
+        t = jnp.clip(dot(p - a, dab) / jnp.maximum(dot(dab, dab), _TINY), 0.0, 1.0)
         dist = jnp.where(ok, safe_norm(p - (a + t * dab)), jnp.inf)
         better = dist < best_d
         best_h = jnp.where(better, jnp.arctan2(dab[1], dab[0]), best_h)
@@ -457,18 +459,18 @@ def ray_segment_distance(origin: Array, direction: Array, a: Array, b: Array) ->
     points; the gradient is zero on a miss.
     """
     e, w = b - a, a - origin
-    return segment_entry(e, w, _cross(w, e), direction)
+    return segment_entry(e, w, cross2(w, e), direction)
 
 
 def segment_entry(e: Array, w: Array, w_x_e: Array, direction: Array) -> Array:
     """``ray_segment_distance`` from the per-segment terms ``e = b - a``,
     ``w = a - origin`` (each (..., 2)) and ``w_x_e = cross(w, e)``, so a caller
     casting many rays at one segment computes them once (observe/raycast.py)."""
-    den = _cross(direction, e)
+    den = cross2(direction, e)
     ok = jnp.abs(den) > _TINY
     den = jnp.where(ok, den, 1.0)
     t = w_x_e / den
-    s = _cross(w, direction) / den
+    s = cross2(w, direction) / den
     hit = ok & (t > 0.0) & (s >= 0.0) & (s <= 1.0)
     return jnp.where(hit, t, jnp.inf)
 

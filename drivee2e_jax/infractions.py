@@ -10,6 +10,8 @@ de-duplication, route completion windows, checkpoints ...) lives in
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -25,7 +27,7 @@ CLASS_VEHICLE = int(CollisionClass.VEHICLE)
 #: Half-angle (rad) within which a lane counts as running the ego's way. LB 2.0
 #: flags a "wrong lane" on a heading jump of > 150 deg; 120 deg is the
 #: junction-exit bound it also uses, so a lane > 120 deg off is opposite traffic.
-LANE_ALIGN_MAX = jnp.deg2rad(120.0)
+LANE_ALIGN_MAX = math.radians(120.0)  # rad; a plain float: nothing touches the JAX backend at import
 #: LB 2.0: off-lane if distance to the lane centre > lane_width / 2 + 0.5 m.
 LANE_MARGIN = 0.5
 #: Radius (m) within which moving vehicles count as surrounding "background"

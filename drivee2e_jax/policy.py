@@ -23,10 +23,14 @@ import inspect
 import json
 import sys
 from pathlib import Path
-from typing import Any, Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.types import Observation
+from drivee2e_jax.hostapi import HostPolicy, validate_host_policy
+from drivee2e_jax.remote import RemotePolicy, is_remote_spec, parse_remote_spec
+
+if TYPE_CHECKING:  # annotations only: this module imports no JAX (host policies use it)
+    from drivee2e_jax.types import Observation
 
 ActionType = Literal["controls", "waypoints"]
 
@@ -73,13 +77,21 @@ class StatelessPolicy:
         raise NotImplementedError
 
 
-def load_policy(path: str | Path, **kwargs) -> Policy:
-    """Load a policy from a Python file.
+def load_policy(path: str | Path, **kwargs) -> Policy | HostPolicy:
+    """Load a policy from a Python file (a JAX ``Policy`` or a ``HostPolicy``),
+    or connect to a remote one (``remote://HOST:PORT``, ``drivee2e serve-policy``).
 
     Raises DriveE2EError (one line) when the file is missing, fails to import,
     or defines neither ``policy`` nor ``make_policy``, or the object lacks the
     protocol's methods.
     """
+    if is_remote_spec(path):
+        if kwargs:
+            raise DriveE2EError(f"{path}: a remote policy takes no make_policy arguments (give them to serve-policy)")
+        spec = parse_remote_spec(str(path))
+        pol = RemotePolicy(spec.address, **spec.kwargs, name=spec.name or None)
+        pol.source = str(path)
+        return pol
     p = Path(path)
     if not p.is_file():
         raise DriveE2EError(f"{path}: policy file not found (expected a .py file defining `policy` or `make_policy`)")
@@ -94,7 +106,6 @@ def load_policy(path: str | Path, **kwargs) -> Policy:
     except Exception as e:  # a user's file: report, don't crash
         raise DriveE2EError(f"{path}: importing the policy failed: {type(e).__name__}: {e}") from e
     if hasattr(module, "make_policy"):
-
         try:
             inspect.signature(module.make_policy).bind(**kwargs)
         except TypeError as e:
@@ -106,6 +117,10 @@ def load_policy(path: str | Path, **kwargs) -> Policy:
         pol = module.policy
     else:
         raise DriveE2EError(f"{path}: defines neither `policy` nor `make_policy()` (expected one of them)")
+    if isinstance(pol, HostPolicy):  # runs on the host; the rollout calls it through hostbridge
+        validate_host_policy(pol, str(path))
+        pol.source = str(path)
+        return pol
     missing = [m for m in ("init", "initial_state", "act", "name", "action_type") if not hasattr(pol, m)]
     if missing:
         raise DriveE2EError(f"{path}: policy object lacks {', '.join(missing)} (see drivee2e_jax.policy.Policy)")
@@ -114,13 +129,15 @@ def load_policy(path: str | Path, **kwargs) -> Policy:
     return pol
 
 
-def parse_policy_spec(spec: str) -> tuple[Path, dict, str]:
+def parse_policy_spec(spec: str) -> tuple[Path | str, dict, str]:
     """``PATH_OR_NAME[:key=value,...]`` -> (policy file, ``make_policy`` kwargs,
-    result name). Values are JSON when they parse (numbers, true, lists), else
+    result name; a ``remote://`` spec stays text). Values are JSON when they parse (numbers, true, lists), else
     text; the key ``name`` renames the policy in the results instead.
 
     Example: ``policies/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3``.
     """
+    if is_remote_spec(spec):  # remote://HOST:PORT[:timeout_s=S,name=N]: kept as text, read by load_policy
+        return spec, {}, parse_remote_spec(spec).name or ""
     head, sep, tail = spec.partition(":")
     kwargs: dict = {}
     if sep:

@@ -101,7 +101,9 @@ class Rollout:
         k_reset, k_pol, key = jax.random.split(key, 3)
         sim_state, obs = self.sim.reset(k_reset, scenario, assets)
         pstate = self.policy.initial_state(obs)
-        action, _ = self.policy.act(params, obs, pstate, k_pol)
+        # Only the action's structure is needed: never run the policy here (a
+        # host policy would be called for a step that does not exist).
+        action, _ = jax.eval_shape(self.policy.act, params, obs, pstate, k_pol)
         neutral = _brake_like(action)
         queue = jax.tree_util.tree_map(lambda a: jnp.stack([a] * self.timing.latency), neutral) if self.timing.latency else None
         return Carry(sim=sim_state, policy_state=pstate, held=neutral, queue=queue, key=key)

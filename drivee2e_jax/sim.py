@@ -1,7 +1,8 @@
 """The simulator: ``reset`` and ``step`` for ONE scenario, pure and jittable.
 
 Per step: sanitise the action -> controls (waypoints go through the
-controller) -> kinematic bicycle -> replay every logged agent and the signals
+controller) -> the ego's ``dynamics.DynamicsModel`` (``SimConfig.dynamics_model``,
+the kinematic bicycle by default) -> replay every logged agent and the signals
 at the new time -> infraction facts (``infractions``) -> leaderboard criteria
 (``metrics.criteria``) -> observation. Non-ego agents never react.
 
@@ -20,8 +21,9 @@ from flax import struct
 
 from drivee2e_jax import controller as ctl
 from drivee2e_jax import dynamics, geometry, infractions, replay
+from drivee2e_jax.dynamics import DynamicsModel, KinematicBicycle
 from drivee2e_jax.metrics import episode as ep
-from drivee2e_jax.metrics.driving_score import ScoreConfig
+from drivee2e_jax.metrics.driving_score import ScoreConfig, score_preset
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.vector import ObsConfig, observe, route_speed_limits
 from drivee2e_jax.types import Controls, EgoState, Observation, Privileged, Scenario, Waypoints
@@ -31,48 +33,24 @@ NUM_CANDIDATE_LANES = 16
 #: Lane boundaries near the route tested for lane invasions.
 NUM_CANDIDATE_BOUNDARIES = 16
 
-#: Scoring presets by name (``--preset``); ``paper`` is the default.
-SCORE_PRESETS = ("paper", "drivee2e", "lb20", "lb21", "b2d")
-
-
-def score_preset(name: str) -> ScoreConfig:
-    """A scoring preset by name.
-
-    ``paper`` (default) is DriveE2E as its paper defines it (App. A): Driving
-    Score with Leaderboard 2.0 penalties, RC threshold 97 % as in its code,
-    blocked after 60 s, and Success = route completed "without collisions or
-    traffic violations", so red light and outside-route-lanes are ON (its code
-    comments them out; see ``drivee2e``). The time cap is the scenario's log
-    length (the source's 12 s cap is its clip length; twin15 logs are 20 s).
-    Minimum speed is OFF: under non-reactive replay the surrounding traffic
-    includes cross traffic moving on its green, which would penalise the
-    correct stop at a red light; the source's replayed actors carry no
-    ``background`` role, so its checkpoints get no samples either (v = 100).
-    The other names are ``ScoreConfig`` presets (``drivee2e`` = the source
-    code's exact rules incl. its 12.1 s cap).
-    """
-    if name == "paper":
-        return dataclasses.replace(
-            ScoreConfig.drivee2e(), name="paper", time_cap_s=None, red_light=True, outside_lanes=True, min_speed=False
-        )
-    if name not in SCORE_PRESETS:
-        raise ValueError(f"unknown score preset {name!r}; expected one of {', '.join(SCORE_PRESETS)}")
-    return ScoreConfig.preset(name)
-
-
 @dataclasses.dataclass(frozen=True)
 class SimConfig:
     """Simulator settings (static under jit).
 
     Attributes:
       dt: simulation step, s (the log may have another step; replay interpolates).
-      dynamics: kinematic bicycle parameters.
+      dynamics: vehicle parameters of ``dynamics_model`` (for the kinematic
+        bicycle a ``dynamics.BicycleParams``: wheelbase m, steer rad, accel
+        m/s^2, speed m/s, drag); the waypoint controller steers for them too.
       controller: PID + pure-pursuit parameters for waypoint actions.
       obs: which vector observations and their sizes.
-      sensors: ``observe.sensors.SensorConfig``: BEV raster / LiDAR on or off
-        (both off by default) and their sizes.
+      sensors: ``observe.sensors.SensorConfig``: which registered sensors
+        (``observe.registry``: BEV raster, LiDAR, ...) are on (all off by
+        default) and their sizes.
       score: leaderboard criteria and penalties (preset ``paper`` by default).
       max_episode_s: episode cap in seconds; ``None`` = the scenario's log length.
+      dynamics_model: the ego's ``dynamics.DynamicsModel`` (frozen, hashable:
+        static under jit); default the kinematic bicycle.
     """
 
     dt: float = 0.1
@@ -82,8 +60,11 @@ class SimConfig:
     sensors: sensors.SensorConfig = dataclasses.field(default_factory=sensors.SensorConfig)
     score: ScoreConfig = dataclasses.field(default_factory=lambda: score_preset("paper"))
     max_episode_s: float | None = None
+    dynamics_model: DynamicsModel = dataclasses.field(default_factory=KinematicBicycle)
 
     def __post_init__(self):
+        if not isinstance(self.dynamics_model, DynamicsModel):
+            raise TypeError(f"SimConfig.dynamics_model must be a dynamics.DynamicsModel, got {self.dynamics_model!r}")
         # The waypoint controller steers for the car being simulated.
         if self.controller.vehicle != self.dynamics:
             object.__setattr__(self, "controller", dataclasses.replace(self.controller, vehicle=self.dynamics))
@@ -261,7 +242,7 @@ class Simulator:
     def _privileged(self, scenario: Scenario, ego: EgoState) -> Privileged:
         cfg = self.config
         nxt = replay.ego_log_at(scenario.tracks, scenario.ego_index, ego.t + cfg.dt, scenario.dt_log)
-        controls = dynamics.inverse(ego, nxt.xy, nxt.yaw, cfg.dt, cfg.dynamics)
+        controls = cfg.dynamics_model.inverse(ego, nxt.xy, nxt.yaw, cfg.dt, cfg.dynamics)
         return Privileged(ego=ego, log_next_xy=nxt.xy, log_next_yaw=nxt.yaw, log_valid=nxt.valid, log_controls=controls)
 
     def observe(self, scenario: Scenario, state: SimState, assets=None) -> Observation:
@@ -295,14 +276,10 @@ class Simulator:
         )
         if not self.config.sensors.enabled:
             return obs
-        tr, m = scenario.tracks, scenario.map
-        out = sensors.render(
-            self.config.sensors, ego=state.ego, ego_lw=state.ctx.ego_lw, agents=agents, size=tr.size,
-            category=tr.category, ego_row=scenario.ego_index, obstacles=m.obstacles,
-            obstacle_height=m.obstacle_height, stop_state=signals, route_xy=scenario.route.xy,
-            route_valid=scenario.route.valid, assets=assets, route_index=ep.route_index(state.episode),
-        )
-        return obs.replace(**out)
+        ctx = sensors.SensorContext(scenario=scenario, ego=state.ego, ego_lw=state.ctx.ego_lw, agents=agents,
+                                    stop_state=signals, route_index=ep.route_index(state.episode),
+                                    assets=assets, key=key)
+        return sensors.to_observation(obs, sensors.render(self.config.sensors, ctx))
 
     def episode_steps(self, scenario: Scenario):
         """() int32 number of steps this scenario runs at most."""
@@ -317,10 +294,12 @@ class Simulator:
         """Ego on its logged pose at t = 0; criteria initialised on the route.
 
         ``assets``: ``observe.sensors.SensorAssets`` of this scenario, needed
-        when ``config.sensors`` turns the BEV on."""
+        when ``config.sensors`` turns on a sensor that reads the map rasters
+        (the BEV; ``SensorConfig.needs_raster``)."""
         tr = scenario.tracks
         i = scenario.ego_index
-        ego = dynamics.ego_from_log(tr.xy[i, 0], tr.yaw[i, 0], tr.vel[i, 0], jnp.zeros((), jnp.float32))
+        ego = self.config.dynamics_model.initial_state(tr.xy[i, 0], tr.yaw[i, 0], tr.vel[i, 0],
+                                                      jnp.zeros((), jnp.float32))
         lanes = _candidate_lanes(scenario, NUM_CANDIDATE_LANES)
         ctx = SimContext(
             lanes=lanes,
@@ -367,7 +346,7 @@ class Simulator:
         cfg = self.config
         active = ~state.episode.done
         controls, cstate, invalid = self.to_controls(state, action)
-        ego = dynamics.step(state.ego, controls, cfg.dt, cfg.dynamics)
+        ego = cfg.dynamics_model.step(state.ego, controls, cfg.dt, cfg.dynamics)
         # Time from the step count: an accumulated float32 t drifts.
         ego = ego.replace(t=(state.step + 1).astype(jnp.float32) * cfg.dt)
         agents = self.agents(scenario, ego.t)

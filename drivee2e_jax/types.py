@@ -441,6 +441,8 @@ class Observation:
                       gives (H, W, C) float32), or None.
       lidar:          (C, Z) float32 LiDAR range image, m (channels x azimuth
                       bins; ``observe.lidar``), or None.
+      sensors:        {name: output} of the other enabled registered sensors
+                      (``observe.registry``), or None when none is on.
     """
 
     ego: Array
@@ -460,3 +462,4 @@ class Observation:
     privileged: Privileged
     bev: Array | None = None
     lidar: Array | None = None
+    sensors: dict | None = None

@@ -165,5 +165,6 @@ print("episode status:", statuses)
 # The same file runs in the main job, with tables, plots and resumable results:
 #
 # ```bash
+# drivee2e check-policy path/to/route_follower.py   # types, shapes, state, NaN, jit / vmap (docs/policies.md)
 # drivee2e bench --policy path/to/route_follower.py --policy expert --split val
 # ```

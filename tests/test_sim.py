@@ -9,15 +9,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import sim_scenarios as ss
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivee2e_jax.eval.closedloop import evaluate
+from drivee2e_jax.metrics.driving_score import score_preset
 from drivee2e_jax.policy import StatelessPolicy, load_policy
 from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk
-from drivee2e_jax.sim import SimConfig, Simulator, sanitize_controls, score_preset
+from drivee2e_jax.sim import SimConfig, Simulator, sanitize_controls
 from drivee2e_jax.types import Controls
+from tests.helpers import sim_scenarios as ss
 
 POLICIES = Path(__file__).resolve().parents[1] / "policies"
 

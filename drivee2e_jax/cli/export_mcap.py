@@ -50,8 +50,10 @@ def run(args) -> int:
 
     from drivee2e_jax.eval.traces import trace_episodes
     from drivee2e_jax.io.mcap_export import topics, write_mcap
+    from drivee2e_jax.observe import registry
 
-    traces = trace_episodes(args.results, args.policy, args.scenarios, sensors=() if args.no_sensors else ("bev", "lidar"))
+    traces = trace_episodes(args.results, args.policy, args.scenarios,
+                            sensors=() if args.no_sensors else registry.shown())
     write_mcap(traces, out)
     n_topics = sum(len(topics(t)) for t in traces)
     bad = [t.scenario_id for t in traces if not t.reproduced]

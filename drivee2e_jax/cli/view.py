@@ -56,10 +56,11 @@ def run(args) -> int:
         raise DriveE2EError(f"--limit {args.limit}: expected a positive number of scenarios")
 
     from drivee2e_jax.eval.traces import trace_episodes
+    from drivee2e_jax.observe import registry
     from drivee2e_jax.viz.player import write_player
 
     traces = trace_episodes(results, policy=args.policy, scenario_ids=args.scenario,
-                            sensors=() if args.no_sensors else ("bev", "lidar"), limit=args.limit)
+                            sensors=() if args.no_sensors else registry.shown(), limit=args.limit)
     if not traces:
         raise DriveE2EError(f"{results}: no episodes to show")
     title = args.title or f"{results.resolve().name} · {traces[0].policy}"

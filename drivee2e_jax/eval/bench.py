@@ -12,24 +12,20 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
+from drivee2e_jax import hostbridge
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval import distributed
 from drivee2e_jax.eval.closedloop import evaluate
+from drivee2e_jax.eval.leaderboard import write_leaderboard_results
 from drivee2e_jax.eval.openloop import evaluate_openloop
 from drivee2e_jax.eval.report import write_report
 from drivee2e_jax.eval.results import RunDir, event_key
+from drivee2e_jax.eval.runspec import RunSpec
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, finite, format_tables, summarize
-from drivee2e_jax.eval.tasks import add_task_success, apply_task, get_task
-from drivee2e_jax.eval.variants import apply_variant, check_variant
+from drivee2e_jax.eval.tasks import add_task_success
 from drivee2e_jax.metrics import episode as ep
-from drivee2e_jax.observe.vector import ObsConfig
 from drivee2e_jax.policy import load_policy
 from drivee2e_jax.progress import StepBar
-from drivee2e_jax.rollout import ControlTiming
-from drivee2e_jax.scenario import load_suite
-from drivee2e_jax.sim import SimConfig, score_preset
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +84,16 @@ class BenchConfig:
     num_processes: int | None = None
     process_id: int | None = None
 
+    def run_spec(self) -> RunSpec:
+        """The requested ``RunSpec`` of this run (``run.json`` once resolved).
+        Raises DriveE2EError for a bad limit, repetitions, task or variant."""
+        return RunSpec(
+            suite=self.suite, split=self.split, preset=self.preset, dt=self.dt, control_every=self.control_every,
+            latency=self.latency, seed=self.seed, open_loop=self.open_loop, task=self.task,
+            repetitions=self.repetitions, limit=self.limit, gps_noise_std=self.gps_noise_std,
+            compass_noise_std=self.compass_noise_std, variant=self.variant,
+        )
+
 
 def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict:
     """Run, write ``results/<run>/`` and print the tables. Returns the summary
@@ -97,19 +103,12 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     if not distributed.is_root():
         print_fn = _silent
 
-    if cfg.limit is not None and cfg.limit < 1:
-        raise DriveE2EError(f"--limit must be >= 1, got {cfg.limit}")
-    if cfg.repetitions < 1:
-        raise DriveE2EError(f"--repetitions must be >= 1, got {cfg.repetitions}")
-    task = get_task(cfg.task)
-    check_variant(cfg.variant)
-    suite = load_suite(cfg.suite)
-    packed = apply_task(task, suite.pack(cfg.split))
-    variant = None
-    if cfg.variant != "complete":  # masks only for the scenarios run
-        rows = np.arange(min(len(packed), cfg.limit or len(packed)))
-        variant = apply_variant(packed.select(rows), cfg.variant, f"{suite.name}-{cfg.split}{_task_tag(task)}")
-        packed = variant.batch
+    spec = cfg.run_spec()  # checks limit, repetitions, task, variant
+    task = spec.task_spec()
+    suite = spec.load_suite()
+    run_batch = spec.batch(suite)
+    packed, variant = run_batch.packed, run_batch.variant
+    if variant is not None:
         print_fn(variant.summary())
     policy_kwargs = cfg.policy_kwargs or tuple({} for _ in cfg.policies)
     policy_names = cfg.policy_names or tuple("" for _ in cfg.policies)
@@ -120,33 +119,12 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise DriveE2EError(f"two policies are named {sorted(dup)[0]!r}; policy names must be unique in a run")
-    try:
-        sim_cfg = SimConfig(dt=cfg.dt, score=score_preset(cfg.preset), obs=_obs_config(cfg))
-        timing = ControlTiming(cfg.control_every, cfg.latency)
-    except ValueError as e:
-        raise DriveE2EError(str(e)) from e
+    sim_cfg = spec.sim_config()
+    timing = spec.timing()
 
-    suite_tag = Path(cfg.suite).name if Path(cfg.suite).exists() else cfg.suite
-    variant_tag = "" if variant is None else f"-{cfg.variant}"
-    out = cfg.out or Path("results") / f"{suite_tag}-{cfg.split}{_task_tag(task)}{variant_tag}"
-    run_info = {
-        "suite": cfg.suite,
-        "suite_version": suite.version,
-        "split": cfg.split,
-        "num_scenarios": min(len(packed.meta), cfg.limit or len(packed.meta)),
-        "preset": cfg.preset,
-        "dt": cfg.dt,
-        "control_every": cfg.control_every,
-        "latency": cfg.latency,
-        "seed": cfg.seed,
-        "open_loop": cfg.open_loop,
-        "task": task.name,
-        "repetitions": cfg.repetitions,
-    }
-    if cfg.gps_noise_std or cfg.compass_noise_std:  # recorded only when used: older run.json stay resumable
-        run_info.update(gps_noise_std=cfg.gps_noise_std, compass_noise_std=cfg.compass_noise_std)
-    if variant is not None:  # recorded only when used: older run.json stay resumable
-        run_info.update(variant=cfg.variant, variant_removed={c: list(v) for c, v in variant.by_category.items()})
+    out = cfg.out or spec.default_out()
+    spec = spec.resolve(suite, run_batch)
+    run_info = spec.to_json()  # run.json
     run, done = distributed.on_root(lambda: RunDir(out, run_info, force=cfg.force), lambda r: [n for n in names if r.done(n)])
     shard = distributed.process_shard(run_info["num_scenarios"]) if multi else None
     if multi and run_info["num_scenarios"] < distributed.process_count():
@@ -160,7 +138,7 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
                 print_fn(f"[{pol.name}] already done in {run.policy_file(pol.name)} (resumed; --force to redo)")
             continue
         # All repetitions in one rollout (the batch tiled, keys as separate seeds would give).
-        seeds = None if cfg.repetitions == 1 else [cfg.seed + rep for rep in range(cfg.repetitions)]
+        seeds = spec.repetition_seeds()
         label = pol.name if seeds is None else f"{pol.name} x{cfg.repetitions} reps"
         bar = StepBar(label, cfg.progress and run is not None)
         res = evaluate(
@@ -182,10 +160,18 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         extra = {"policy_path": str(path), **timing_info, "runs": [timing_info]}
         if run is not None:
             run.save_policy(pol.name, res.rows, events, {**extra, "policy_kwargs": kwargs} if kwargs else extra)
+    for pol in policies:  # host policies: release what they hold (a remote policy's connection)
+        if hostbridge.is_host(pol):
+            pol.close()
 
     if run is None:  # not process 0: process 0 writes the results
         return {}
-    rows_by_policy = {n: run.load_policy(n)["rows"] for n in names}
+    policy_data = {n: run.load_policy(n) for n in names}
+    rows_by_policy = {n: d["rows"] for n, d in policy_data.items()}
+    for pol in policies:  # leaderboard/<policy>.json: a CARLA LB 2.0 / Bench2Drive results.json per agent
+        d = policy_data[pol.name]
+        write_leaderboard_results(out / "leaderboard" / run.policy_file(pol.name).name, d["rows"], d["events"],
+                                  run_info, pol)
     summary = summarize(rows_by_policy, run_info)
     run.write_tables(names, summary, ep.COUNT_COLUMNS)
     print_fn("")
@@ -200,10 +186,6 @@ def _silent(_line: str) -> None:
     """``print_fn`` of processes other than 0."""
 
 
-def _task_tag(task) -> str:
-    return "" if task.name == "route_navigation" else f"-{task.name}"
-
-
 def _named(pol, name: str):
     """``pol`` under the result name ``name`` ("" = unchanged)."""
     if not name or name == pol.name:
@@ -212,12 +194,6 @@ def _named(pol, name: str):
         return dataclasses.replace(pol, name=name)
     pol.name = name  # a fresh object per load_policy call: nothing else sees it
     return pol
-
-
-def _obs_config(cfg: BenchConfig):
-    """The default ``ObsConfig`` with the run's observation noise."""
-
-    return dataclasses.replace(ObsConfig(), gps_noise_std=cfg.gps_noise_std, compass_noise_std=cfg.compass_noise_std)
 
 
 def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, print_fn, suite) -> None:

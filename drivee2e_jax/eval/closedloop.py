@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from drivee2e_jax import hostbridge
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.results import event_key
 from drivee2e_jax.metrics import episode as ep
@@ -92,6 +93,7 @@ def evaluate(
     Sensors: ``config.sensors`` plus every sensor the policy lists in
     ``required_sensors`` (``with_policy_sensors``).
     """
+    policy = hostbridge.wrap(policy)
     packed = suite.pack(split) if hasattr(suite, "pack") else suite
     if limit is not None:
         packed = packed.select(np.arange(min(limit, len(packed))))
@@ -105,7 +107,7 @@ def evaluate(
         seed = seeds[0]
         packed = packed.select(np.tile(np.arange(n_scn), len(seeds)))
     cfg = with_policy_sensors(config or SimConfig(), policy)
-    if cfg.sensors.bev is not None and maps is None:
+    if cfg.sensors.needs_raster and maps is None:
         if not hasattr(suite, "maps"):
             raise ValueError("evaluate: the BEV needs the suite's maps: pass maps= with a PackedBatch")
         maps = suite.maps
@@ -115,6 +117,9 @@ def evaluate(
     key = jax.random.PRNGKey(seed)
     if params is None:
         params = init_params(policy, sim, batch, key, assets)
+    if hostbridge.is_host(policy):  # one host call per step for the whole batch, on one device
+        devices = devices or jax.local_devices()[:1]
+        hostbridge.begin(policy, hostbridge.meta_rows(policy, meta, batch), lambda: first_observation(sim, batch, key, assets))
     b = int(batch.ego_index.shape[0])
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
     chunk = balanced_chunk(total, chunk, (timing or ControlTiming()).control_every)
@@ -126,6 +131,7 @@ def evaluate(
     carry = ro.init(run_batch, keys)
     carry, first = ro.advance(run_batch, carry)
     jax.block_until_ready(carry)
+    hostbridge.raise_if_failed(policy)
     compile_s = time.perf_counter() - t0  # includes one chunk of stepping
 
     t1 = time.perf_counter()
@@ -135,6 +141,7 @@ def evaluate(
         progress(min(steps, total), total)
     while steps < total and not bool(np.all(np.asarray(carry.sim.episode.done))):
         carry, log = ro.advance(run_batch, carry)
+        hostbridge.raise_if_failed(policy)
         logs.append(_head(log, b))
         steps += chunk
         if progress:
@@ -174,15 +181,15 @@ def with_policy_sensors(config: SimConfig, policy) -> SimConfig:
     own = getattr(policy, "sensor_config", None)
     chosen = config.sensors
     for name in required:
-        fixed = None if own is None else getattr(own, name, None)
-        configured = getattr(config.sensors, name, None)
+        fixed = None if own is None else own.get(name)
+        configured = config.sensors.get(name)
         if fixed is None or configured == fixed:
             continue
         if configured is not None:
             size = bev_label if name == "bev" else repr
             raise DriveE2EError(f"policy {getattr(policy, 'name', '?')!r}: SimConfig.sensors.{name} is {size(configured)} "
                                 f"but the policy was trained on {size(fixed)}; leave it unset or set that one")
-        chosen = dataclasses.replace(chosen, **{name: fixed})
+        chosen = chosen.with_sensor(name, fixed)
     want = set(required) | set(config.sensors.enabled)
     return dataclasses.replace(config, sensors=sensors.SensorConfig.for_policy(tuple(want), chosen))
 
@@ -192,10 +199,17 @@ def init_params(policy, sim: Simulator, batch, key, assets=None):
     the policy's parameters for a rollout of ``batch`` (a device ``Scenario``
     batch, (B, ...)) under ``sim``; ``assets``: the batch's ``SensorAssets``
     when a sensor is on."""
+    obs = jax.tree_util.tree_map(lambda a: a[0], first_observation(sim, batch, key, assets))
+    return policy.init(key, obs)
+
+
+def first_observation(sim: Simulator, batch, key, assets=None):
+    """The initial observation of ``batch``'s first scenario, with a leading
+    batch axis of 1 (what a host policy sees for a one-scenario batch)."""
     first = jax.tree_util.tree_map(lambda a: a[0], batch)
     first_assets = None if assets is None else assets.replace(map_index=assets.map_index[0])
     _, obs = jax.jit(sim.reset)(key, first, first_assets)
-    return policy.init(key, obs)
+    return jax.tree_util.tree_map(lambda a: a[None], obs)
 
 
 def _route_mean(values, valid):
@@ -233,7 +247,7 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
     )
     for i, (m, fine) in enumerate(zip(meta.rows(), fine_rows)):
         counts = {k: int(v[i]) for k, v in ep.counts_dict(res).items()}
-        log_i = jax.tree_util.tree_map(lambda a: a[i], logs)
+        log_i = jax.tree_util.tree_map(lambda a, i=i: a[i], logs)
         row = {
             "policy": name,
             "scenario_id": m["scenario_id"],

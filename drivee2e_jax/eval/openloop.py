@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from drivee2e_jax import geometry, replay
+from drivee2e_jax import geometry, hostbridge, replay
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import device_batch, with_policy_sensors
 from drivee2e_jax.metrics import openloop as olm
@@ -242,6 +242,7 @@ def collect_openloop(
     Arguments as ``evaluate_openloop``; ``measure=True`` runs the compiled
     program a second time to time it without compilation.
     """
+    policy = hostbridge.wrap(policy)  # a host policy: one host call per query for the whole batch
     _check_args(policy, horizon, waypoint_dt, every)
     if hasattr(packed, "pack"):
         raise DriveE2EError("evaluate_openloop expects a PackedBatch (e.g. suite.pack('val')), got a Suite")
@@ -264,6 +265,7 @@ def collect_openloop(
     reset = _cached(_RESETS, sim.config, lambda: jax.jit(jax.vmap(sim.reset, in_axes=(0, 0, axes))))
     states, obs = reset(jax.random.split(k_reset, b), batch, assets)
     obs0 = jax.tree_util.tree_map(lambda a: a[0], obs)
+    hostbridge.begin(policy, hostbridge.meta_rows(policy, meta, batch), lambda: jax.tree_util.tree_map(lambda a: a[:1], obs))
     if params is None:
         params = policy.init(k_init, obs0)
 
@@ -292,6 +294,7 @@ def collect_openloop(
     )
     keys = jax.random.split(k_run, b)
     facts = run(batch, states, obs, keys, assets, params)
+    hostbridge.raise_if_failed(policy)
     facts = jax.tree_util.tree_map(np.asarray, facts)
     compile_s = time.perf_counter() - t0
     wall_s = 0.0

@@ -9,13 +9,17 @@ same folder + ``os.replace``):
 * ``metric_distributions.png``: one box plot panel per column (DS, RC and a
   few other numeric columns), one box per policy, pooled over repetitions.
 
-matplotlib is imported inside the functions so importing this module is cheap.
+Figures are made with matplotlib's object API (``Figure`` + the Agg canvas), never pyplot.
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from drivee2e_jax.files import atomic_write
 
@@ -45,8 +49,6 @@ def write_plots(folder: Path, policies: list[str], groups: list[str], sizes: lis
 
 def grouped_bars(policies, groups, sizes, values: dict[str, list], ylabel: str, title: str):
     """Bars per group, one per policy; ``values[policy][i]`` is (mean, std) or None. Scale 0-100."""
-    from matplotlib.figure import Figure
-
     width_in = min(16.0, max(8.0, 0.4 * len(groups) * max(len(policies), 2) + 2.5))
     fig = Figure(figsize=(width_in, 4.5), layout="constrained")
     ax = fig.add_subplot()
@@ -72,8 +74,6 @@ def grouped_bars(policies, groups, sizes, values: dict[str, list], ylabel: str, 
 
 def distributions_grid(policies, distributions: dict[str, dict[str, list[float]]]):
     """One box-plot panel per column; a box per policy (white diamond = mean)."""
-    from matplotlib.figure import Figure
-
     cols = list(distributions)
     nrows = math.ceil(len(cols) / 4)
     ncols = math.ceil(len(cols) / nrows)  # balanced rows: 5 panels -> 3 + 2, not 4 + 1
@@ -103,8 +103,6 @@ def distributions_grid(policies, distributions: dict[str, dict[str, list[float]]
 
 
 def _patch(color):
-    from matplotlib.patches import Patch
-
     return Patch(facecolor=color, alpha=0.8, edgecolor="black")
 
 
@@ -114,7 +112,5 @@ def _color(i: int) -> str:
 
 def _save(fig, path: Path, dpi: int = 130) -> None:
     """Render ``fig`` with Agg and write the PNG atomically."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
     FigureCanvasAgg(fig)
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=dpi), binary=True)

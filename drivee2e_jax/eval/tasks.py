@@ -45,7 +45,7 @@ import numpy as np
 
 from drivee2e_jax import infractions, replay
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.pack import PackedBatch
+from drivee2e_jax.scenario.batch import PackedBatch
 from drivee2e_jax.types import Category, Command, EgoState, SignalState
 
 #: driving_in_traffic: a logged vehicle ahead within this distance, m ...

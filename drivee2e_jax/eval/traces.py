@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import base64
 import dataclasses
-import io
 import json
 import warnings
 from collections.abc import Sequence
@@ -52,27 +51,27 @@ from typing import Any
 import jax
 import numpy as np
 
-from drivee2e_jax import replay
+from drivee2e_jax import hostbridge, replay
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.eval.closedloop import device_batch, init_params, with_policy_sensors
-from drivee2e_jax.eval.tasks import apply_task, get_task
-from drivee2e_jax.eval.variants import apply_variant
+from drivee2e_jax.eval.closedloop import device_batch, first_observation, init_params, with_policy_sensors
+from drivee2e_jax.eval.runspec import RUN_JSON, RunSpec
 from drivee2e_jax.geometry import from_frame
 from drivee2e_jax.metrics import episode as ep
-from drivee2e_jax.observe import lidar as lidar_mod
-from drivee2e_jax.observe import raycast
+from drivee2e_jax.observe import registry
 from drivee2e_jax.observe import sensors as sensors_mod
 from drivee2e_jax.observe.bev import BevConfig, unpack_bits
 from drivee2e_jax.observe.lidar import LidarConfig
+from drivee2e_jax.observe.palette import bev_rgb
+from drivee2e_jax.observe.png import png_bytes
+from drivee2e_jax.observe.sensor_api import SensorContext, SensorFrames
 from drivee2e_jax.observe.sensors import SensorConfig
-from drivee2e_jax.observe.vector import ObsConfig
 from drivee2e_jax.policy import load_policy
 from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk
-from drivee2e_jax.scenario import load_suite
-from drivee2e_jax.sim import SimConfig, Simulator, score_preset
+from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Waypoints, to_numpy
 
-#: Sensors a trace can render (``trace_episodes(sensors=...)``).
+#: The built-in sensors a trace renders by default (``trace_episodes(sensors=...)``);
+#: any sensor of ``observe.registry`` can be asked for.
 TRACE_SENSORS = ("bev", "lidar")
 #: |re-simulated - stored| Driving Score above which a trace counts as not reproduced.
 DS_TOLERANCE = 1e-3
@@ -81,15 +80,21 @@ DS_TOLERANCE = 1e-3
 def default_sensor_config(sensors: Sequence[str] = TRACE_SENSORS):
     """The trace's ``SensorConfig``: 128x128 BEV at 0.5 m/px (default channels)
     and a light 16-channel x 180-bin LiDAR (2880 beams; a file per episode
-    stays ~10 MB), only those named in ``sensors``."""
+    stays ~10 MB), any other registered sensor (``observe.registry``) at its
+    ``default_config()``, only those named in ``sensors``."""
 
-    bad = [s for s in sensors if s not in TRACE_SENSORS]
+    known = registry.names()
+    bad = [s for s in sensors if s not in known]
     if bad:
-        raise DriveE2EError(f"sensors: unknown {bad[0]!r}; expected some of {', '.join(TRACE_SENSORS)}")
-    return SensorConfig(
+        raise DriveE2EError(f"sensors: unknown {bad[0]!r}; expected some of {', '.join(known)}")
+    cfg = SensorConfig(
         bev=BevConfig() if "bev" in sensors else None,
         lidar=LidarConfig(channels=16, azimuth_bins=180) if "lidar" in sensors else None,
     )
+    for name in sensors:
+        if name not in registry.SLOTTED:
+            cfg = cfg.with_sensor(name, registry.get(name).default_config())
+    return cfg
 
 
 # --------------------------------------------------------------------------
@@ -189,6 +194,10 @@ class EpisodeTrace:
         box centre on the ground, x forward, y left, z up), m, or None.
       lidar_class: (T, N) int8 hit class (``observe.lidar``: 1 ground,
         2 obstacle, 3 + Category agents).  lidar_valid: (T, N) bool.
+      sensors: {name: ``observe.sensor_api.SensorFrames``} of every other
+        registered sensor traced (``Sensor.trace`` per instant, leading axis
+        T, and its config); shown by the player and the MCAP export as the
+        sensor's ``display`` says.
     """
 
     scenario_id: str
@@ -225,6 +234,7 @@ class EpisodeTrace:
     lidar_points: np.ndarray | None = None
     lidar_class: np.ndarray | None = None
     lidar_valid: np.ndarray | None = None
+    sensors: dict = dataclasses.field(default_factory=dict)
 
     @property
     def num_steps(self) -> int:
@@ -239,12 +249,19 @@ class EpisodeTrace:
 
 @dataclasses.dataclass(frozen=True)
 class RunRecord:
-    """What ``trace_episodes`` needs from a results folder."""
+    """What ``trace_episodes`` needs from a results folder.
+
+    Attributes:
+      path: the results folder.  info: run.json as read.
+      policy: the policy traced.  data: its ``policies/<policy>.json``.
+      spec: run.json as a ``RunSpec`` (the settings re-simulation uses).
+    """
 
     path: Path
     info: dict  # run.json
     policy: str
     data: dict  # policies/<policy>.json
+    spec: RunSpec
 
 
 def read_run(results_dir: str | Path, policy: str | None = None) -> RunRecord:
@@ -255,6 +272,10 @@ def read_run(results_dir: str | Path, policy: str | None = None) -> RunRecord:
     if not meta.is_file():
         raise DriveE2EError(f"{path}: not a drivee2e results folder (no run.json; expected the --out of `drivee2e bench`)")
     info = _read_json(meta)
+    try:
+        spec = RunSpec.from_json(info)
+    except DriveE2EError as e:
+        raise DriveE2EError(f"{meta}: {e}") from e
     files = {}
     for f in sorted((path / "policies").glob("*.json")):
         data = _read_json(f)
@@ -268,7 +289,7 @@ def read_run(results_dir: str | Path, policy: str | None = None) -> RunRecord:
     name = order[0] if policy is None else policy
     if name not in files:
         raise DriveE2EError(f"--policy {policy}: not in {path} (expected one of {', '.join(order)})")
-    return RunRecord(path=path, info=info, policy=name, data=files[name])
+    return RunRecord(path=path, info=info, policy=name, data=files[name], spec=spec)
 
 
 def _read_json(path: Path) -> Any:
@@ -284,7 +305,7 @@ def stored_rows(run: RunRecord) -> dict[str, dict]:
 
 
 def _load_run_policy(run: RunRecord):
-
+    """The run's policy, loaded as the bench loaded it (path + keyword arguments)."""
     path = run.data.get("policy_path")
     if not path:
         raise DriveE2EError(f"{run.path}/policies: {run.policy}'s file has no policy_path")
@@ -295,23 +316,15 @@ def _load_run_policy(run: RunRecord):
 
 
 def _run_packed(run: RunRecord):
-    """(suite, the packed batch the bench evaluated: task-filtered, limited)."""
+    """(suite, the packed batch the bench evaluated: task-filtered, limited,
+    variant applied with the same mask cache label): ``RunSpec.batch``."""
 
-    info = run.info
-    suite = load_suite(info["suite"])
-    if str(suite.version) != str(info.get("suite_version", suite.version)):
-        warnings.warn(f"{run.path}: run on suite version {info['suite_version']}, now {suite.version}; "
+    spec = run.spec
+    suite = spec.load_suite()
+    if spec.suite_version is not None and str(suite.version) != str(spec.suite_version):
+        warnings.warn(f"{run.path}: run on suite version {spec.suite_version}, now {suite.version}; "
                       "traces may differ", stacklevel=3)
-    task = info.get("task", "route_navigation")
-    packed = apply_task(get_task(task), suite.pack(info["split"]))
-    n = min(len(packed), int(info.get("num_scenarios") or len(packed)))
-    packed = packed.select(np.arange(n))
-    variant = info.get("variant", "complete")
-    if variant != "complete":  # agents removed as the bench removed them (same mask cache label)
-
-        tag = "" if task == "route_navigation" else f"-{task}"
-        packed = apply_variant(packed, variant, f"{suite.name}-{info['split']}{tag}").batch
-    return suite, packed
+    return suite, spec.batch(suite).limited()
 
 
 def select_rows(scenario_ids_all: Sequence[str], wanted: Sequence[str] | None) -> np.ndarray:
@@ -348,7 +361,8 @@ def trace_episodes(
       results_dir: a ``drivee2e bench`` output folder.
       policy: policy name in it (None: the run's first policy).
       scenario_ids: ids to trace (None: every scenario of the run).
-      sensors: subset of ``("bev", "lidar")`` to render per step (``()``: none).
+      sensors: names of registered sensors (``observe.registry``) to render
+        per step (``()``: none; default the built-in ``("bev", "lidar")``).
       sensor_config: an ``observe.sensors.SensorConfig`` overriding
         ``default_sensor_config(sensors)``; its BEV is used only for a policy
         that sees none (``trace_bev_sensors``).
@@ -370,7 +384,7 @@ def trace_episodes(
     traces = []
     for j, row in enumerate(rows):
         sid = str(packed.meta.scenario_id[row])
-        tr = _episode_trace(run, packed, int(row), j, sim_out, frames, stored.get(sid, {}), bev_cfg)
+        tr = _episode_trace(run, packed, int(row), j, sim_out, frames, stored.get(sid, {}), bev_cfg, sensor_cfg)
         if not tr.reproduced:
             warnings.warn(f"{sid}: re-simulated driving score {tr.driving_score:.4f} differs from the stored "
                           f"{tr.stored_driving_score:.4f} ({run.path})", stacklevel=2)
@@ -381,40 +395,31 @@ def trace_episodes(
 @dataclasses.dataclass(frozen=True)
 class RunSettings:
     """The rollout settings of a run (``run.json``): simulator config without
-    the policy's sensors, control timing and PRNG seed."""
+    the policy's sensors, control timing and PRNG seed (of repetition 0)."""
 
-    sim: Any  # sim.SimConfig
-    timing: Any  # rollout.ControlTiming
+    sim: SimConfig
+    timing: ControlTiming
     seed: int
 
 
 def _run_settings(run: RunRecord) -> RunSettings:
-    """``RunSettings`` of ``run.json`` (as ``bench.run_bench`` builds them)."""
+    """``RunSettings`` of ``run.json``: the ``RunSpec`` builders the bench uses."""
 
-    info = run.info
     try:
-        obs = dataclasses.replace(ObsConfig(), gps_noise_std=float(info.get("gps_noise_std", 0.0)),
-                                  compass_noise_std=float(info.get("compass_noise_std", 0.0)))
-        sim_cfg = SimConfig(dt=float(info["dt"]), score=score_preset(info.get("preset", "paper")), obs=obs)
-        timing = ControlTiming(int(info.get("control_every", 1)), int(info.get("latency", 0)))
-    except ValueError as e:
-        raise DriveE2EError(f"{run.path / 'run.json'}: {e}") from e
-    return RunSettings(sim=sim_cfg, timing=timing, seed=int(info.get("seed", 0)))
+        return RunSettings(sim=run.spec.sim_config(), timing=run.spec.timing(), seed=run.spec.seed)
+    except DriveE2EError as e:
+        raise DriveE2EError(f"{run.path / RUN_JSON}: {e}") from e
 
 
-def _tracing_rollout_cls():
+class TracingRollout(Rollout):
+    """A Rollout whose scan also emits, per step, the action applied and
+    the simulator state after the step (without its per-episode constants
+    ``ctx``): the trace renders its frames from those states with
+    ``Simulator.observe``, the function the policy's observation comes from."""
 
-    class TracingRollout(Rollout):
-        """A Rollout whose scan also emits, per step, the action applied and
-        the simulator state after the step (without its per-episode constants
-        ``ctx``): the trace renders its frames from those states with
-        ``Simulator.observe``, the function the policy's observation comes from."""
-
-        def _step_one(self, scenario, carry, assets, params, query=None):
-            carry, log = super()._step_one(scenario, carry, assets, params, query)
-            return carry, (log, carry.held, carry.sim.replace(ctx=None))
-
-    return TracingRollout
+    def _step_one(self, scenario, carry, assets, params, query=None):
+        carry, log = super()._step_one(scenario, carry, assets, params, query)
+        return carry, (log, carry.held, carry.sim.replace(ctx=None))
 
 
 def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> dict:
@@ -433,24 +438,27 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     "batch" the numpy ``Scenario`` rows}.
     """
 
+    pol = hostbridge.wrap(pol)  # a host policy: the same host calls as the bench made
     try:
         cfg = with_policy_sensors(settings.sim, pol)
     except ValueError as e:  # an unknown required sensor
         raise DriveE2EError(f"policy {getattr(pol, 'name', '?')!r}: {e}") from e
     assets = sensors_mod.build_assets(packed, cfg.sensors, suite.maps)
-    batch, _ = device_batch(packed)
+    batch, meta = device_batch(packed)
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(settings.seed)
     params = init_params(pol, sim, batch, key, assets)
+    hostbridge.begin(pol, hostbridge.meta_rows(pol, meta, batch), lambda: first_observation(sim, batch, key, assets))
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
     chunk = balanced_chunk(total, 50, settings.timing.control_every)  # as evaluate chunks it
-    ro = _tracing_rollout_cls()(sim, pol, params, timing=settings.timing, chunk=chunk, assets=assets)
+    ro = TracingRollout(sim, pol, params, timing=settings.timing, chunk=chunk, assets=assets)
     pick = lambda tree: jax.tree_util.tree_map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
     carry = ro.init(batch, jax.random.split(key, len(packed)))
     first = pick(carry.sim)
     chunks, steps = [], 0
     while steps < total and not bool(np.all(np.asarray(carry.sim.episode.done))):
         carry, out = ro.advance(batch, carry)
+        hostbridge.raise_if_failed(pol)
         chunks.append(pick(out))
         steps += ro.chunk
     logs, actions, states = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *chunks)
@@ -488,28 +496,35 @@ def trace_bev_sensors(policy_sensors, sensor_cfg):
     if sensor_cfg.bev is None:
         return None
     if policy_sensors.bev is not None:
-        return dataclasses.replace(policy_sensors, lidar=None)
+        return SensorConfig.for_policy(("bev",), policy_sensors)
     return SensorConfig(bev=sensor_cfg.bev, scene=sensor_cfg.scene, raster_resolution=sensor_cfg.raster_resolution)
 
 
-def _frame_fn(sim, bev_sim, lidar_cfg, scene_cfg):
+def _frame_fn(sim, bev_sim, sensor_cfg):
     """jit(vmap over time) of one scenario's replayed agents, signals and
     sensors: the BEV is ``bev_sim.observe(...).bev`` of each traced state
     (exactly the policy's observation when ``bev_sim`` is the rollout's
-    simulator), the LiDAR a point cloud of ``lidar_cfg``."""
+    simulator), the LiDAR a point cloud of ``sensor_cfg.lidar``, every other
+    sensor of ``sensor_cfg`` its ``Sensor.trace`` (key ``sensor.<name>``)."""
+
+    others = [n for n in sensor_cfg.enabled if n not in registry.SLOTTED]
 
     def one(scenario, ctx, state, assets):
         state = state.replace(ctx=ctx)
-        ego, tr, m = state.ego, scenario.tracks, scenario.map
+        ego = state.ego
         seen = sim.agents(scenario, ego.t)
-        out = {"agents": seen, "signals": replay.signals_at(scenario.signals, ego.t, scenario.dt_log)}
+        signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
+        out = {"agents": seen, "signals": signals}
         if bev_sim is not None:
             out["bev"] = bev_sim.observe(scenario, state, assets).bev
-        if lidar_cfg is not None:
-            scene = raycast.select_scene(ego.xy, seen, tr.size, tr.category, m.obstacles, m.obstacle_height,
-                                         scene_cfg, exclude=scenario.ego_index)
-            scan = lidar_mod.lidar_scan(scene, ego.xy, ego.yaw, lidar_cfg)
-            out["lidar_points"], out["lidar_class"], out["lidar_valid"] = scan.points, scan.hit_class.reshape(-1), scan.valid
+        sctx = SensorContext(scenario=scenario, ego=ego, ego_lw=ctx.ego_lw, agents=seen, stop_state=signals,
+                             route_index=ep.route_index(state.episode), assets=assets, key=state.obs_key,
+                             scene=sensor_cfg.scene)
+        if sensor_cfg.lidar is not None:
+            scan = registry.get("lidar").trace(sctx, sensor_cfg.lidar)
+            out["lidar_points"], out["lidar_class"], out["lidar_valid"] = scan["points"], scan["hit_class"], scan["valid"]
+        for n in others:
+            out[f"sensor.{n}"] = registry.get(n).trace(sctx.for_sensor(n), sensor_cfg.get(n))
         return out
 
     return jax.jit(jax.vmap(one, in_axes=(None, None, 0, None)))
@@ -534,7 +549,9 @@ def _frames(sim_out: dict, suite, packed, rows: np.ndarray, sensor_cfg):
     else:
         bev_sim = Simulator(dataclasses.replace(sim.config, sensors=bev_sensors))
         assets = sensors_mod.build_assets(packed, bev_sensors, suite.maps)
-    fn = _frame_fn(sim, bev_sim, sensor_cfg.lidar, sensor_cfg.scene)
+    if assets is None and sensor_cfg.needs_raster:  # another registered sensor reads the map rasters
+        assets = sensors_mod.build_assets(packed, sensor_cfg, suite.maps)
+    fn = _frame_fn(sim, bev_sim, sensor_cfg)
     out = []
     for j, row in enumerate(rows):
         a = None if assets is None else assets.replace(map_index=np.asarray(assets.map_index)[row])
@@ -588,9 +605,10 @@ def _timeline(log, n: int, ego_speed: np.ndarray, rc0: float) -> dict:
 
 
 def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, frames: list, stored: dict,
-                   bev_cfg) -> EpisodeTrace:
+                   bev_cfg, sensor_cfg=None) -> EpisodeTrace:
     """Trace of chosen row ``j`` (packed row ``row``); ``bev_cfg``: the
-    ``BevConfig`` of ``frames``' BEV (None: no BEV)."""
+    ``BevConfig`` of ``frames``' BEV (None: no BEV); ``sensor_cfg``: the
+    trace's ``SensorConfig`` (configs of the other sensors' frames)."""
 
     log = _row(sim_out["logs"], j)
     n = _episode_length(np.asarray(log.active))
@@ -636,7 +654,7 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
         policy=run.policy,
         meta=meta,
         row=stored,
-        dt=float(run.info["dt"]),
+        dt=float(run.spec.dt),
         times=cut(ego.t).astype(np.float64),
         ego_size=np.asarray(sc.tracks.size[ego_idx]),
         ego_xy=cut(ego.xy),
@@ -672,6 +690,10 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
         trace.lidar_points = cut(fr["lidar_points"]).astype(np.float32)
         trace.lidar_class = cut(fr["lidar_class"]).astype(np.int8)
         trace.lidar_valid = cut(fr["lidar_valid"])
+    for name in () if sensor_cfg is None else sensor_cfg.enabled:  # registry order
+        if f"sensor.{name}" in fr:
+            frames = jax.tree_util.tree_map(cut, fr[f"sensor.{name}"])
+            trace.sensors[name] = SensorFrames(config=sensor_cfg.get(name), frames=frames)
     return trace
 
 
@@ -700,8 +722,8 @@ def _nan_to_none(x):
 def to_jsonable(trace: EpisodeTrace, *, bev: bool = False, lidar_stride: int = 0) -> dict:
     """A compact JSON-ready dict of ``trace`` (lists, floats rounded: positions
     to cm, angles to mrad; non-finite -> null). Sensors are left out unless
-    asked: ``bev=True`` adds ``bev_png``: T base64 PNGs of ``bev_rgb`` (row 0
-    farthest ahead) and ``bev_resolution``;
+    asked: ``bev=True`` adds ``bev_png``: T base64 PNGs of ``bev_rgb`` (the
+    shared palette of ``observe.palette``; row 0 farthest ahead) and ``bev_resolution``;
     ``lidar_stride=s`` adds ``lidar``: T dicts {xyz: every s-th valid return
     (ego frame, m), class: its hit class}.
 
@@ -759,36 +781,6 @@ def to_jsonable(trace: EpisodeTrace, *, bev: bool = False, lidar_stride: int = 0
             for p, c, v in zip(trace.lidar_points, trace.lidar_class, trace.lidar_valid)
         ]
     return out
-
-
-#: BEV channel colours (RGB 0-255) in drawing order: later channels paint over earlier ones.
-BEV_COLOURS = {
-    "drivable": (60, 60, 60), "lane": (90, 90, 90), "crosswalk": (150, 150, 150), "dashed": (200, 200, 200),
-    "solid": (235, 235, 235), "road_edge": (255, 255, 255), "obstacle": (140, 90, 60), "stop_line": (255, 255, 255),
-    "stop_green": (40, 200, 60), "stop_yellow": (240, 200, 0), "stop_red": (230, 40, 40), "route": (70, 130, 230),
-    "vehicle": (250, 150, 30), "pedestrian": (230, 60, 200), "cyclist": (0, 200, 200), "ego": (255, 255, 80),
-}
-
-
-def bev_rgb(bev: dict, k: int) -> np.ndarray:
-    """(H, W, 3) uint8 colour picture of step ``k`` of a trace's BEV
-    channels (``BEV_COLOURS``; unknown channels, e.g. history frames, are skipped)."""
-    first = next(iter(bev.values()))
-    img = np.zeros(first.shape[1:] + (3,), np.uint8)
-    for name, colour in BEV_COLOURS.items():
-        if name in bev:
-            img[bev[name][k]] = colour
-    return img
-
-
-def png_bytes(rgb: np.ndarray) -> bytes:
-    """PNG file bytes of an (H, W, 3) uint8 image (matplotlib's writer)."""
-
-    from matplotlib import image as mpimg
-
-    buf = io.BytesIO()
-    mpimg.imsave(buf, rgb, format="png")
-    return buf.getvalue()
 
 
 def _jsonable_value(v):

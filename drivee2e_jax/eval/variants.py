@@ -46,8 +46,9 @@ from drivee2e_jax.files import atomic_write, cache_dir
 from drivee2e_jax.observe import camera, raycast, visibility
 from drivee2e_jax.records import CATEGORIES, SuiteRecord
 from drivee2e_jax.replay import AgentStates
+from drivee2e_jax.scenario.batch import PackedBatch
 from drivee2e_jax.scenario.filters import filter_invisible, filter_invisible_packed
-from drivee2e_jax.scenario.pack import PackedBatch, flatten_scenario
+from drivee2e_jax.scenario.flat import flatten_scenario
 from drivee2e_jax.scenario.suite import load_suite
 
 __all__ = ["VARIANTS", "VisibilityConfig", "Variant", "check_variant", "reference_visibility",
@@ -134,7 +135,7 @@ def reference_visibility(batch: PackedBatch, cfg: VisibilityConfig = VisibilityC
     total, done = b * t, 0
     for i in range(0, b, s):
         rows = np.minimum(np.arange(i, i + s), b - 1)
-        chunk = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)[rows]), batch.scenario)
+        chunk = jax.tree_util.tree_map(lambda x, rows=rows: jnp.asarray(np.asarray(x)[rows]), batch.scenario)
         n = min(s, b - i)
         for j in range(0, t, tb):
             steps = np.minimum(np.arange(j, j + tb), t - 1)

@@ -16,11 +16,17 @@ topic              schema                    messages
 ``scene``          foxglove.SceneUpdate      T: ego, agents, signals at stop lines, plan
 ``map``            foxglove.SceneUpdate      1: lanes, boundaries, crosswalks, stop
                                              lines, drivable area, obstacles, route
-``bev``            foxglove.CompressedImage  T: the BEV as a PNG (``episodes.bev_rgb``)
+``bev``            foxglove.CompressedImage  T: the BEV as a PNG (``observe.palette``)
 ``lidar``          foxglove.PointCloud       T: LiDAR returns, frame ``ego`` (x, y, z, class)
 ``metrics``        drivee2e.EpisodeMetrics   T: speed, route completion, controls, the
                                              StepLog facts and events of the step
 ``infractions``    foxglove.Log              one per stored infraction event
+``<sensor>``       foxglove.CompressedImage  T: every other traced sensor
+                   or foxglove.PointCloud    (``trace.sensors``) as its
+                                             ``observe.registry`` display says
+                                             ("image": PNG of ``Sensor.image``;
+                                             "pointcloud": ``Sensor.points``,
+                                             frame ``ego``; "none": no topic)
 =================  ========================  =====================================
 
 Time: log time = the sim clock plus the episode's offset; episodes follow one
@@ -40,9 +46,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from mcap.writer import Writer
 
-from drivee2e_jax.eval.traces import bev_rgb, png_bytes
 from drivee2e_jax.files import atomic_write
+from drivee2e_jax.observe import registry
+from drivee2e_jax.observe.palette import bev_rgb
+from drivee2e_jax.observe.png import png_bytes
 
 #: Gap between consecutive episodes on the file's timeline, ns.
 EPISODE_GAP_NS = 1_000_000_000
@@ -355,14 +364,42 @@ _POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("class", "u1
 
 def point_cloud(trace, k: int, ns: int) -> dict:
     ok = trace.lidar_valid[k]
-    pts = np.zeros(int(ok.sum()), _POINT_DTYPE)
-    xyz = trace.lidar_points[k][ok]
+    return _cloud(trace.lidar_points[k][ok], trace.lidar_class[k][ok], ns)
+
+
+def _cloud(xyz: np.ndarray, hit_class: np.ndarray, ns: int) -> dict:
+    """foxglove.PointCloud of (N, 3) ego-frame points, m, with (N,) hit classes."""
+    pts = np.zeros(len(xyz), _POINT_DTYPE)
     pts["x"], pts["y"], pts["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    pts["class"] = trace.lidar_class[k][ok]
+    pts["class"] = hit_class
     fields = [{"name": n, "offset": _POINT_DTYPE.fields[n][1], "type": UINT8 if n == "class" else FLOAT32}
               for n in _POINT_DTYPE.names]
     return {"timestamp": _stamp(ns), "frame_id": "ego", "pose": _IDENTITY, "point_stride": _POINT_DTYPE.itemsize,
             "fields": fields, "data": base64.b64encode(pts.tobytes()).decode("ascii")}
+
+
+#: Foxglove schema of each drawable ``Sensor.display``.
+DISPLAY_SCHEMA = {"image": "foxglove.CompressedImage", "pointcloud": "foxglove.PointCloud"}
+
+
+def _shown_sensors(trace) -> dict:
+    """{name: Sensor} of the trace's other sensors that are registered and drawable."""
+    out = {}
+    for name in (getattr(trace, "sensors", None) or {}):
+        if name in registry.names() and registry.get(name).display in DISPLAY_SCHEMA:
+            out[name] = registry.get(name)
+    return out
+
+
+def sensor_message(trace, name: str, k: int, ns: int) -> dict:
+    """Step ``k`` of the trace's sensor ``name`` (``trace.sensors``) as a
+    CompressedImage (PNG of ``Sensor.image``) or a PointCloud (``Sensor.points``)."""
+    sensor, sf = registry.get(name), trace.sensors[name]
+    if sensor.display == "image":
+        return {"timestamp": _stamp(ns), "frame_id": "ego", "format": "png",
+                "data": base64.b64encode(png_bytes(sensor.image(sf.frame(k), sf.config))).decode("ascii")}
+    xyz, cls = sensor.points(sf.frame(k), sf.config)
+    return _cloud(np.asarray(xyz, np.float32).reshape(-1, 3), np.asarray(cls).reshape(-1), ns)
 
 
 def _finite_or_none(v):
@@ -399,6 +436,8 @@ def topics(trace) -> dict[str, str]:
         out[f"{p}/bev"] = "foxglove.CompressedImage"
     if trace.lidar_points is not None:
         out[f"{p}/lidar"] = "foxglove.PointCloud"
+    for name, sensor in _shown_sensors(trace).items():
+        out[f"{p}/{name}"] = DISPLAY_SCHEMA[sensor.display]
     return out
 
 
@@ -419,8 +458,6 @@ def write_mcap(traces, path: str | Path) -> Path:
 
 
 def _write(traces, stream) -> None:
-    from mcap.writer import Writer
-
     w = Writer(stream)
     w.start(profile=PROFILE, library="drivee2e-jax")
     schema_ids: dict[str, int] = {}
@@ -439,7 +476,7 @@ def _write(traces, stream) -> None:
         stamps = [offset + int(round(float(t) * 1e9)) for t in tr.times]
         seq = {name: 0 for name in ch}
 
-        def put(name: str, ns: int, msg: dict) -> None:
+        def put(name: str, ns: int, msg: dict, ch: dict = ch, seq: dict = seq) -> None:
             w.add_message(channel_id=ch[name], log_time=ns, publish_time=ns, sequence=seq[name],
                           data=json.dumps(msg, allow_nan=False, separators=(",", ":")).encode())
             seq[name] += 1
@@ -455,6 +492,8 @@ def _write(traces, stream) -> None:
                 put("bev", ns, bev_image(tr, k, ns))
             if "lidar" in ch:
                 put("lidar", ns, point_cloud(tr, k, ns))
+            for name in _shown_sensors(tr):
+                put(name, ns, sensor_message(tr, name, k, ns))
             put("metrics", ns, metrics(tr, k, ns))
             while ei < len(events) and offset + int(round(float(events[ei]["t"]) * 1e9)) <= ns:
                 put("infractions", ns, infraction_log(tr, events[ei], ns))

@@ -23,6 +23,8 @@ from typing import Literal
 
 import numpy as np
 
+from drivee2e_jax.polyline import polyline_length
+
 #: BM map waypoints are generated every 0.5 m; each covered one adds 0.5 m.
 WAYPOINT_SPACING_M = 0.5
 #: A pose contributes to the position deviation iff its nearest waypoint is closer (strict).
@@ -125,10 +127,6 @@ def distinct_events(event_xy, event_time_s=None, *, min_gap_m: float = EVENT_MIN
         if t is not None:
             prev_t = t[e]
     return keep
-
-
-def _polyline_length(xy: np.ndarray) -> float:
-    return float(np.sqrt((np.diff(xy, axis=0) ** 2).sum(-1)).sum()) if len(xy) > 1 else 0.0
 
 
 def _per_km(value: float, km: float, *, zero_if_zero: bool) -> float:
@@ -274,7 +272,7 @@ def bm_code_metrics(map_waypoints_xy, pose_xy, pose_time_s, speed_mps, controls,
     tc = _as("collision_time_s", fn, collision_time_s, (None,))
     tl = _as("lane_invasion_time_s", fn, lane_invasion_time_s, (None,))
 
-    out: dict[str, float] = {"completed_distance": _polyline_length(xy)}
+    out: dict[str, float] = {"completed_distance": polyline_length(xy)}
 
     kmh = v * KMH_PER_MPS
     out["average_speed"] = float(kmh.sum() / len(kmh))
@@ -396,7 +394,7 @@ def episode_behavior(xy, speed_mps, dt_s: float, lane_offset_m, front_distance_m
         n_col, n_inv = len(cs), len(ls)
 
     out: dict[str, float] = {
-        "completed_distance_m": _polyline_length(p),
+        "completed_distance_m": polyline_length(p),
         "effective_completed_distance_m": eff_m,
         "average_speed_kmh": float(v.mean() * KMH_PER_MPS),
         "position_deviation_mean_m": float(off.mean()),

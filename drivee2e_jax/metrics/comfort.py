@@ -117,7 +117,7 @@ def _xy(name: str, a, n: int | None) -> np.ndarray:
     return arr[:, :2]
 
 
-def _signals(a, f, r, wz, delta_s: float) -> dict[str, np.ndarray]:
+def chunk_signals(a, f, r, wz, delta_s: float) -> dict[str, np.ndarray]:
     """``b2d_comfort_signals`` on a batch of chunks: ``a, f, r`` (..., n, 2),
     ``wz`` (..., n); returns (..., n) arrays."""
     n = wz.shape[-1]
@@ -141,7 +141,7 @@ def _signals(a, f, r, wz, delta_s: float) -> dict[str, np.ndarray]:
     }
 
 
-def _checks(sig: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def chunk_checks(sig: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{bound name: (...) bool} every frame of the chunk strictly inside (NaN fails)."""
     return {k: np.all((sig[k] > lo) & (sig[k] < hi), axis=-1) for k, lo, hi in B2D_BOUNDS}
 
@@ -169,7 +169,7 @@ def b2d_comfort_signals(accel_xy, forward_xy, right_xy, yaw_rate, *,
     wz = np.asarray(yaw_rate, dtype=np.float64).reshape(-1)
     n = len(wz)
     a, f, r = (_xy(k, v, n) for k, v in (("accel_xy", accel_xy), ("forward_xy", forward_xy), ("right_xy", right_xy)))
-    return _signals(a, f, r, wz, delta_s)
+    return chunk_signals(a, f, r, wz, delta_s)
 
 
 def b2d_comfort_checks(accel_xy, forward_xy, right_xy, yaw_rate, *, delta_s: float = B2D_DELTA_S) -> dict[str, bool]:
@@ -181,7 +181,7 @@ def b2d_comfort_checks(accel_xy, forward_xy, right_xy, yaw_rate, *, delta_s: flo
       {signal name: bool}; the chunk passes iff all are True (NaN fails).
     """
     sig = b2d_comfort_signals(accel_xy, forward_xy, right_xy, yaw_rate, delta_s=delta_s)
-    return {k: bool(v) for k, v in _checks(sig).items()}
+    return {k: bool(v) for k, v in chunk_checks(sig).items()}
 
 
 def b2d_route_smoothness(accel_xy, forward_xy, right_xy, yaw_rate, *, chunk: int = B2D_CHUNK,
@@ -208,7 +208,8 @@ def b2d_route_smoothness(accel_xy, forward_xy, right_xy, yaw_rate, *, chunk: int
     m = n if n <= chunk else (n // chunk) * chunk
     c = 1 if n <= chunk else n // chunk
     cut = lambda x: x[:m].reshape((c, m // c) + x.shape[1:])  # noqa: E731 - (chunks, frames, ...)
-    passed = np.logical_and.reduce(list(_checks(_signals(cut(a), cut(f), cut(r), cut(wz), delta_s)).values()))
+    sig = chunk_signals(cut(a), cut(f), cut(r), cut(wz), delta_s)
+    passed = np.logical_and.reduce(list(chunk_checks(sig).values()))
     return float(passed.mean())
 
 
@@ -273,5 +274,7 @@ __all__ = [
     "b2d_frames_from_episode",
     "b2d_route_smoothness",
     "b2d_smoothness",
+    "chunk_checks",
+    "chunk_signals",
     "savgol_filter",
 ]

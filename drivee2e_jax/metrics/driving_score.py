@@ -503,3 +503,32 @@ def outcome_from_events(
         route_timeout=np.asarray(bool(route_timeout)),
         tick_runtime=np.asarray(bool(tick_runtime)),
     )
+
+
+#: Scoring presets by name (``--preset``); ``paper`` is the default.
+SCORE_PRESETS = ("paper", "drivee2e", "lb20", "lb21", "b2d")
+
+
+def score_preset(name: str) -> ScoreConfig:
+    """A scoring preset by name.
+
+    ``paper`` (default) is DriveE2E as its paper defines it (App. A): Driving
+    Score with Leaderboard 2.0 penalties, RC threshold 97 % as in its code,
+    blocked after 60 s, and Success = route completed "without collisions or
+    traffic violations", so red light and outside-route-lanes are ON (its code
+    comments them out; see ``drivee2e``). The time cap is the scenario's log
+    length (the source's 12 s cap is its clip length; twin15 logs are 20 s).
+    Minimum speed is OFF: under non-reactive replay the surrounding traffic
+    includes cross traffic moving on its green, which would penalise the
+    correct stop at a red light; the source's replayed actors carry no
+    ``background`` role, so its checkpoints get no samples either (v = 100).
+    The other names are ``ScoreConfig`` presets (``drivee2e`` = the source
+    code's exact rules incl. its 12.1 s cap).
+    """
+    if name == "paper":
+        return dataclasses.replace(
+            ScoreConfig.drivee2e(), name="paper", time_cap_s=None, red_light=True, outside_lanes=True, min_speed=False
+        )
+    if name not in SCORE_PRESETS:
+        raise ValueError(f"unknown score preset {name!r}; expected one of {', '.join(SCORE_PRESETS)}")
+    return ScoreConfig.preset(name)

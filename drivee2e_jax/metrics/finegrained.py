@@ -203,8 +203,8 @@ def smoothness_pct(yaw, speed, n_active, dt_s: float, chunk: int = comfort.B2D_C
         c = t // chunk
         cut = lambda x: x[long, : c * chunk].reshape((int(long.sum()), c, chunk) + x.shape[2:])  # noqa: E731
         ok = np.arange(c)[None, :] < (n[long] // chunk)[:, None]  # (B_long, c) complete chunks
-        sig = comfort._signals(cut(accel)[ok], cut(fwd)[ok], cut(right)[ok], cut(rate)[ok], dt_s)
-        passed = np.logical_and.reduce(list(comfort._checks(sig).values()))  # (chunks,)
+        sig = comfort.chunk_signals(cut(accel)[ok], cut(fwd)[ok], cut(right)[ok], cut(rate)[ok], dt_s)
+        passed = np.logical_and.reduce(list(comfort.chunk_checks(sig).values()))  # (chunks,)
         per_episode = np.zeros(ok.shape)
         per_episode[ok] = passed
         out[long] = 100.0 * per_episode.sum(axis=1) / ok.sum(axis=1)

@@ -28,12 +28,13 @@ import dataclasses
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from drivee2e_jax.models import base
 
 #: Input scales: positions / 10 m, speeds / 10 m/s, accel / 5 m/s^2.
-_HIST_SCALE = jnp.array([0.1, 0.1, 1.0, 1.0, 0.1, 0.2, 1.0], jnp.float32)
-_EGO_SCALE = jnp.array([0.1, 0.2, 1.0, 1.0], jnp.float32)
+_HIST_SCALE = np.array([0.1, 0.1, 1.0, 1.0, 0.1, 0.2, 1.0], np.float32)
+_EGO_SCALE = np.array([0.1, 0.2, 1.0, 1.0], np.float32)
 _NUM_COMMANDS = 8  # Command -1..6
 
 

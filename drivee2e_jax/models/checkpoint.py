@@ -21,6 +21,7 @@ from typing import Any
 
 import jax
 import numpy as np
+import orbax.checkpoint as ocp
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.files import atomic_write_json
@@ -35,8 +36,6 @@ DEFAULT_BEV = BevConfig()
 
 
 def _checkpointer():
-    import orbax.checkpoint as ocp
-
     return ocp.StandardCheckpointer()
 
 
@@ -87,8 +86,6 @@ def restore(ckpt: str | Path, target: Any = None) -> dict:
     ck = _checkpointer()
     if target is None:
         return ck.restore(d / "state")
-    import orbax.checkpoint as ocp
-
     abstract = jax.tree_util.tree_map(ocp.utils.to_shape_dtype_struct, jax.tree_util.tree_map(np.asarray, target))
     return ck.restore(d / "state", abstract)
 

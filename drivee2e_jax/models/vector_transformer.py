@@ -35,6 +35,7 @@ import dataclasses
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from drivee2e_jax.models import base
 from drivee2e_jax.models.tcp import POS_SCALE, SPEED_SCALE, STEP_SCALE, command_onehot
@@ -42,7 +43,7 @@ from drivee2e_jax.observe.vector import NO_SIGNAL_DISTANCE
 from drivee2e_jax.types import Category, SignalState
 
 #: Agent feature scales: x, y / 20 m, cos, sin, vx, vy / 10 m/s, length, width / 5 m.
-_AGENT_SCALE = jnp.array([POS_SCALE, POS_SCALE, 1.0, 1.0, SPEED_SCALE, SPEED_SCALE, 0.2, 0.2], jnp.float32)
+_AGENT_SCALE = np.array([POS_SCALE, POS_SCALE, 1.0, 1.0, SPEED_SCALE, SPEED_SCALE, 0.2, 0.2], np.float32)
 _NUM_CATEGORIES = len(Category)
 _NUM_SIGNALS = len(SignalState)
 _NEG = -1e9  # max-pool fill for invalid points

@@ -79,7 +79,9 @@ import numpy as np
 
 from drivee2e_jax import geometry
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.observe.palette import composite_bev
 from drivee2e_jax.observe.raster import Layer, RasterTable
+from drivee2e_jax.observe.sensor_api import SensorBase, SensorContext
 from drivee2e_jax.observe.xla_cpu import materialize
 from drivee2e_jax.types import Category, SignalState
 
@@ -631,6 +633,44 @@ def render_bev(*, ego_xy: Array, ego_yaw: Array, ego_lw: Array, agents_xy: Array
                  "history_xy", "history_yaw", "history_valid")
         return unpack_bits(render_bev_packed(**dict(zip(names, args))), len(cfg.channel_names))
     return jnp.stack([p.astype(jnp.float32) for p in _planes(*args)], axis=-1)
+
+
+class BevSensor(SensorBase):
+    """The BEV in the sensor registry (``observe.registry``).
+
+    ``render(ctx, cfg)``: (H, W) int32 bit-packed hard-mode BEV
+    (``render_bev_packed``; bit i = ``cfg.channel_names[i]``) of ``ctx``'s
+    instant, the route cut to ``route_window`` around ``ctx.route_index``
+    when given. Needs ``ctx.assets`` (the map rasters). ``image(frame, cfg)``:
+    the ``observe.palette`` picture of one packed frame."""
+
+    name = "bev"
+    display = "image"
+    needs_raster = True
+
+    def default_config(self) -> BevConfig:
+        return BevConfig()
+
+    def render(self, ctx: SensorContext, cfg: BevConfig) -> Array:
+        if ctx.assets is None:
+            raise ValueError("SensorConfig.bev is on but no SensorAssets were given (observe.sensors.build_assets)")
+        route_xy, route_valid = ctx.scenario.route.xy, ctx.scenario.route.valid
+        if ctx.route_index is not None:
+            route_xy, route_valid = route_window(route_xy, route_valid, ctx.route_index, cfg)
+        return render_bev_packed(
+            ego_xy=ctx.ego.xy, ego_yaw=ctx.ego.yaw, ego_lw=ctx.ego_lw, agents_xy=ctx.agents.xy,
+            agents_yaw=ctx.agents.yaw, agents_size=ctx.size, agents_category=ctx.category,
+            agents_valid=ctx.agents.valid, stop_state=ctx.stop_state, route_xy=route_xy, route_valid=route_valid,
+            table=ctx.assets.raster, map_index=ctx.assets.map_index, cfg=cfg,
+        )
+
+    def image(self, frame, cfg: BevConfig) -> np.ndarray:
+        names = cfg.channel_names
+        return composite_bev(np.asarray(unpack_bits(jnp.asarray(frame), len(names))), names)
+
+
+#: The BEV's registry entry.
+SENSOR = BevSensor()
 
 
 # --------------------------------------------------------------------------

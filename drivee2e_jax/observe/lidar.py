@@ -22,6 +22,7 @@ from flax import struct
 
 from drivee2e_jax import geometry
 from drivee2e_jax.observe import raycast
+from drivee2e_jax.observe.sensor_api import SensorBase, SensorContext
 
 Array = jnp.ndarray
 
@@ -128,3 +129,33 @@ def lidar_scan(scene: raycast.RayScene, ego_xy: Array, ego_yaw: Array, cfg: Lida
         points=pts.reshape(-1, 3).astype(jnp.float32),
         valid=found.reshape(-1),
     )
+
+
+class LidarSensor(SensorBase):
+    """The LiDAR in the sensor registry (``observe.registry``).
+
+    ``render(ctx, cfg)``: (C, Z) float32 range image, m (``LidarScan.range``)
+    of ``ctx.ray_scene()``. ``trace(ctx, cfg)``: the point cloud
+    ``{"points": (C*Z, 3) float32 ego frame m, "hit_class": (C*Z,) int32,
+    "valid": (C*Z,) bool}``; ``points(frame, cfg)``: its valid returns."""
+
+    name = "lidar"
+    display = "pointcloud"
+
+    def default_config(self) -> LidarConfig:
+        return LidarConfig()
+
+    def render(self, ctx: SensorContext, cfg: LidarConfig) -> Array:
+        return lidar_scan(ctx.ray_scene(), ctx.ego.xy, ctx.ego.yaw, cfg).range
+
+    def trace(self, ctx: SensorContext, cfg: LidarConfig) -> dict:
+        scan = lidar_scan(ctx.ray_scene(), ctx.ego.xy, ctx.ego.yaw, cfg)
+        return {"points": scan.points, "hit_class": scan.hit_class.reshape(-1), "valid": scan.valid}
+
+    def points(self, frame, cfg: LidarConfig) -> tuple[np.ndarray, np.ndarray]:
+        ok = np.asarray(frame["valid"], bool)
+        return np.asarray(frame["points"], np.float32)[ok], np.asarray(frame["hit_class"])[ok]
+
+
+#: The LiDAR's registry entry.
+SENSOR = LidarSensor()

@@ -118,14 +118,14 @@ def radar_returns(scene: raycast.RayScene, ego_xy: Array, ego_yaw: Array, ego_ve
         z = r.shape[0]
         # One return per object: its nearest ray (packed range bits | ray index).
         ray_bits = max(1, (z - 1).bit_length())
-        key = raycast._pack(r, jnp.arange(z, dtype=jnp.int32), ray_bits, cfg.max_range)
-        key = jnp.where(obj >= 0, key, raycast._MISS)
-        best = jnp.full((num_objects + 1,), raycast._MISS, jnp.int32).at[jnp.where(obj >= 0, obj, num_objects)].min(key)
+        key = raycast.pack_key(r, jnp.arange(z, dtype=jnp.int32), ray_bits, cfg.max_range)
+        key = jnp.where(obj >= 0, key, raycast.MISS)
+        best = jnp.full((num_objects + 1,), raycast.MISS, jnp.int32).at[jnp.where(obj >= 0, obj, num_objects)].min(key)
         best = best[:num_objects]
         m = min(cfg.max_returns, num_objects)
         neg, _ = jax.lax.top_k(-best, m)
         keys = -neg
-        valid = keys != raycast._MISS
+        valid = keys != raycast.MISS
         ray = jnp.where(valid, keys & ((1 << ray_bits) - 1), 0)
         world_az = heading + azimuths[ray]
         direction = jnp.stack([jnp.cos(world_az), jnp.sin(world_az)], axis=-1)

@@ -111,7 +111,8 @@ def layer_geometries(m: MapRecord, line_width: float = 0.75) -> dict[Layer, list
     where = f"map {m.map_id!r}"
     out: dict[Layer, list] = {layer: [] for layer in Layer}
     out[Layer.DRIVABLE] = [_polygon(p, f"{where} drivable_areas[{i}]") for i, p in enumerate(m.drivable_areas)]
-    out[Layer.LANE] = [_line(l.centerline, line_width, f"{where} lanes[{i}].centerline") for i, l in enumerate(m.lanes)]
+    out[Layer.LANE] = [_line(lane.centerline, line_width, f"{where} lanes[{i}].centerline")
+                       for i, lane in enumerate(m.lanes)]
     for i, b in enumerate(m.boundaries):
         if b.marking in _MARKING_LAYER:
             out[_MARKING_LAYER[b.marking]].append(_line(b.points, line_width, f"{where} boundaries[{i}].points"))
@@ -158,7 +159,7 @@ def _fill(target: np.ndarray, geom, value: int, origin, res: float, mode: str) -
 
 def map_bounds(m: MapRecord) -> np.ndarray:
     """(2, 2) [[xmin, ymin], [xmax, ymax]] of every map element, m."""
-    parts = [np.asarray(l.centerline, float).reshape(-1, 2) for l in m.lanes]
+    parts = [np.asarray(lane.centerline, float).reshape(-1, 2) for lane in m.lanes]
     parts += [np.asarray(b.points, float).reshape(-1, 2) for b in m.boundaries]
     parts += [np.asarray(p, float).reshape(-1, 2) for p in (*m.crosswalks, *m.drivable_areas)]
     parts += [np.asarray(s.points, float).reshape(-1, 2) for s in m.stop_lines]

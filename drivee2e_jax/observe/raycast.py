@@ -57,7 +57,8 @@ HIT_GROUND = 1
 HIT_STATIC = 2
 HIT_AGENT = 3  # + types.Category
 
-_MISS = 2**31 - 1  # key of "no candidate"; above every packed finite range
+#: Key of "no candidate" (``pack_key``); above every packed finite range.
+MISS = 2**31 - 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,7 +186,7 @@ def select_scene(
 
     o = obstacles.xy.shape[0]
     n_obs = min(cfg.num_obstacles, o)
-    start, end, e_ok = jax.vmap(geometry._closed_edges)(obstacles.xy, obstacles.point_valid)  # (O, V, ...)
+    start, end, e_ok = jax.vmap(geometry.closed_edges)(obstacles.xy, obstacles.point_valid)  # (O, V, ...)
     seg_d = jax.vmap(jax.vmap(geometry.point_segment_distance, (None, 0, 0)), (None, 0, 0))(ego_xy, start, end)
     o_gap = jnp.min(jnp.where(e_ok, seg_d, jnp.inf), axis=1)
     o_ok = obstacles.valid & (o_gap <= cfg.radius)
@@ -194,7 +195,7 @@ def select_scene(
     else:
         oidx = jnp.zeros((0,), jnp.int32)
     v = obstacles.xy.shape[1]
-    area2 = jnp.sum(jnp.where(e_ok, geometry._cross(start, end), 0.0), axis=1)  # twice the signed area
+    area2 = jnp.sum(jnp.where(e_ok, geometry.cross2(start, end), 0.0), axis=1)  # twice the signed area
     edge_valid = (e_ok[oidx] & o_ok[oidx][:, None]).reshape(-1)
     return RayScene(
         agent_xy=agents.xy[idx],
@@ -283,12 +284,14 @@ def _segments(tiers, spacing: float, z: int, full_circle: bool, n: int) -> list[
     return out
 
 
-def _pack(dist: Array, ident, id_bits: int, max_range: float) -> Array:
-    """int32 keys ordering candidates by range (low id bits break ties)."""
+def pack_key(dist: Array, ident, id_bits: int, max_range: float) -> Array:
+    """int32 keys ordering candidates by range: the float32 bits of ``dist``
+    (m, >= 0) with the low ``id_bits`` replaced by ``ident`` (breaking ties);
+    ``MISS`` where ``dist >= max_range``. Shared with ``observe.radar``."""
     ok = dist < max_range
     bits = jax.lax.bitcast_convert_type(jnp.where(ok, dist, 0.0).astype(jnp.float32), jnp.int32)
     key = ((bits >> id_bits) << id_bits) | ident
-    return jnp.where(ok, key, _MISS)
+    return jnp.where(ok, key, MISS)
 
 
 def _box_frames(scene: RayScene, origin: Array) -> tuple[Array, ...]:
@@ -314,7 +317,7 @@ def _edge_frames(scene: RayScene, origin: Array) -> tuple[Array, ...]:
     and cross(w, e) (E,), the per-edge terms of ``geometry.ray_segment_distance``."""
     e = scene.edge_b - scene.edge_a
     w = scene.edge_a - origin
-    return tuple(materialize(x) for x in (e, w, geometry._cross(w, e)))
+    return tuple(materialize(x) for x in (e, w, geometry.cross2(w, e)))
 
 
 def _ray_segment(frame: tuple[Array, ...], direction: Array) -> Array:
@@ -369,7 +372,7 @@ def polar_buffer(
         groups.append((0, corners, valid, cfg.agent_tiers, agent_dist))
     if e > 0:
         frame = _edge_frames(scene, origin)
-        facing = geometry._cross(frame[0], -frame[1]) * scene.edge_orient < 0
+        facing = geometry.cross2(frame[0], -frame[1]) * scene.edge_orient < 0
         valid = scene.edge_valid & facing
 
         def edge_dist(i, rays_dir, frame=frame, valid=valid):
@@ -403,7 +406,7 @@ def polar_buffer(
         lookup.append((id0, n, start, rank, seg_info))
     cand_ray = jnp.concatenate(cand_ray)
     cand_dist = jnp.concatenate(cand_dist)
-    cand_key = _pack(cand_dist, jnp.concatenate(cand_id).astype(jnp.int32), id_bits, max_range)
+    cand_key = pack_key(cand_dist, jnp.concatenate(cand_id).astype(jnp.int32), id_bits, max_range)
     m = cand_key.shape[0]
 
     def winner_index(layer):
@@ -423,7 +426,7 @@ def polar_buffer(
             for seg_base, all_rows, off_lo, off_hi in seg_info:
                 row = obj if all_rows else pos
                 idx = jnp.where(off >= off_lo, seg_base + row * (off_hi - off_lo) + (off - off_lo), idx)
-            mine = (ident >= id0) & (ident < id0 + n) & (layer != _MISS)
+            mine = (ident >= id0) & (ident < id0 + n) & (layer != MISS)
             where = jnp.where(mine, idx, where)
         return where
 
@@ -434,12 +437,12 @@ def polar_buffer(
         # The next round excludes this round's winners by their index (a
         # scatter of Z) instead of comparing every candidate with its ray's
         # key (a gather of all candidates).
-        buf = jnp.full((z + 1,), _MISS, jnp.int32).at[cand_ray].min(ck, mode="promise_in_bounds")
+        buf = jnp.full((z + 1,), MISS, jnp.int32).at[cand_ray].min(ck, mode="promise_in_bounds")
         layers.append(buf[:z])
         idxs.append(winner_index(buf[:z]))
         if d + 1 < cfg.depth:
-            ck = jnp.concatenate([ck, jnp.full((1,), _MISS, jnp.int32)])  # slot m: "no winner"
-            ck = ck.at[idxs[-1]].set(_MISS, mode="promise_in_bounds")[:m]
+            ck = jnp.concatenate([ck, jnp.full((1,), MISS, jnp.int32)])  # slot m: "no winner"
+            ck = ck.at[idxs[-1]].set(MISS, mode="promise_in_bounds")[:m]
     keys = jnp.stack(layers, axis=-1)  # (Z, D)
     # The winners' exact ranges: gathered from their candidates, not
     # recomputed per (ray, layer).
@@ -458,7 +461,7 @@ def _spacing(azimuths: np.ndarray, full_circle: bool) -> float:
 def _decode(scene: RayScene, keys: Array, rng: Array, id_bits: int) -> PolarBuffer:
     """The buffer from the winners' packed keys (Z, D) and exact ranges (Z, D)."""
     k, e = scene.num_agents, scene.num_edges
-    found = keys != _MISS
+    found = keys != MISS
     ident = keys & ((1 << id_bits) - 1)
     is_agent = found & (ident < k)
     ka = jnp.clip(ident, 0, max(k - 1, 0))

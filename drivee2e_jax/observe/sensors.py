@@ -1,10 +1,15 @@
 """The optional sensors in the rollout: which are on, their assets, one call per step.
 
-``SensorConfig`` (in ``SimConfig.sensors``) switches the BEV raster
-(``observe.bev``) and the LiDAR (``observe.lidar``) on and sizes them; both
+``SensorConfig`` (in ``SimConfig.sensors``) switches the registered sensors
+(``observe.registry``: the BEV raster ``observe.bev``, the LiDAR
+``observe.lidar``, and any sensor registered since) on and sizes them; all
 are off by default, and under ``jit`` a sensor that is off costs nothing. A
 policy declares what it needs with ``required_sensors = ("bev", "lidar")``
 (``SensorConfig.for_policy`` turns that into a config; ``evaluate`` does it).
+
+``render(config, ctx)`` renders every enabled sensor from ONE
+``SensorContext`` (``observe.sensor_api``) and ``to_observation`` puts the
+outputs in the ``Observation``.
 
 What lands in ``Observation``:
 
@@ -15,6 +20,7 @@ What lands in ``Observation``:
   0.7 GB per step, the packed words are 52 MB.
 * ``lidar``: (channels, azimuth_bins) float32 range image, m (``max_range``
   where a beam has no return); azimuth 0 = ego forward, counter-clockwise.
+* ``sensors``: {name: output} of every other enabled sensor (None when none is on).
 
 The BEV's static layers come from ``SensorAssets.raster`` (every map of the
 suite rasterised once on the host, ``observe.raster.rasterize_maps``) and
@@ -26,18 +32,18 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
-from flax import struct
 
 from drivee2e_jax.observe import bev as bev_mod
 from drivee2e_jax.observe import lidar as lidar_mod
-from drivee2e_jax.observe import raycast
-from drivee2e_jax.observe.raster import RasterTable, rasterize_maps
+from drivee2e_jax.observe import raycast, registry
+from drivee2e_jax.observe.raster import rasterize_maps
+from drivee2e_jax.observe.sensor_api import SensorAssets, SensorContext
 
-#: Sensor names a policy may list in ``required_sensors``.
-SENSORS = ("bev", "lidar")
+__all__ = ["SensorAssets", "SensorConfig", "SensorContext", "assets_axes", "build_assets", "render",
+           "to_observation"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,48 +56,66 @@ class SensorConfig:
       scene: ``observe.raycast.SceneConfig``: how many nearest agents /
         obstacles the ray casts consider, within what radius.
       raster_resolution: m per pixel of the pre-rasterised static map layers.
+      others: ``((name, config), ...)`` of the registered sensors without a
+        field of their own (``registry.SLOTTED``), sorted by name; use
+        ``with_sensor`` / ``get`` rather than this tuple.
     """
 
     bev: bev_mod.BevConfig | None = None
     lidar: lidar_mod.LidarConfig | None = None
     scene: raycast.SceneConfig = raycast.SceneConfig()
     raster_resolution: float = 0.25
+    others: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self):
         if self.bev is not None and (self.bev.soft or len(self.bev.channels) > 31):
             raise ValueError("SensorConfig.bev: the rollout carries the bit-packed BEV; needs soft=False and "
                              f"<= 31 channels, got soft={self.bev.soft}, {len(self.bev.channels)} channels")
+        others = tuple(sorted((str(n), c) for n, c in dict(self.others).items() if c is not None))
+        for n, _ in others:
+            if n in registry.SLOTTED:
+                raise ValueError(f"SensorConfig.others: {n!r} has its own field (SensorConfig.{n})")
+            registry.get(n)  # ValueError on an unknown sensor
+        object.__setattr__(self, "others", others)
+
+    def get(self, name: str) -> Any:
+        """The config of sensor ``name``, None when it is off."""
+        if name in registry.SLOTTED:
+            return getattr(self, name)
+        return dict(self.others).get(name)
+
+    def with_sensor(self, name: str, config: Any) -> SensorConfig:
+        """This config with sensor ``name`` set to ``config`` (None: off)."""
+        if name in registry.SLOTTED:
+            return dataclasses.replace(self, **{name: config})
+        registry.get(name)
+        return dataclasses.replace(self, others=(*((n, c) for n, c in self.others if n != name), (name, config)))
 
     @property
     def enabled(self) -> tuple[str, ...]:
-        return tuple(n for n in SENSORS if getattr(self, n) is not None)
+        """Names of the sensors that are on, in registry order."""
+        return tuple(n for n in registry.names() if self.get(n) is not None)
+
+    @property
+    def needs_raster(self) -> bool:
+        """Whether an enabled sensor reads the map rasters (``build_assets``)."""
+        return any(registry.get(n).needs_raster for n in self.enabled)
 
     @classmethod
     def for_policy(cls, required: Sequence[str], base: SensorConfig | None = None) -> SensorConfig:
-        """``base`` with every sensor in ``required`` on (default sizes) and
-        every other one off. Raises ValueError naming an unknown sensor."""
+        """``base`` with every sensor in ``required`` on (``base``'s config,
+        else the sensor's ``default_config()``) and every other one off.
+        Raises ValueError naming an unknown sensor."""
         base = base or cls()
-        bad = [s for s in required if s not in SENSORS]
+        known = registry.names()
+        bad = [s for s in required if s not in known]
         if bad:
-            raise ValueError(f"required_sensors: unknown {bad[0]!r} (expected some of {', '.join(SENSORS)})")
-        return dataclasses.replace(
-            base,
-            bev=(base.bev or bev_mod.BevConfig()) if "bev" in required else None,
-            lidar=(base.lidar or lidar_mod.LidarConfig()) if "lidar" in required else None,
-        )
-
-
-@struct.dataclass
-class SensorAssets:
-    """Host-built inputs of the sensors, for one scenario.
-
-    Attributes:
-      raster: RasterTable of every map of the batch (shared, broadcast under vmap).
-      map_index: () int32 this scenario's row in ``raster`` ((B,) when batched).
-    """
-
-    raster: RasterTable
-    map_index: jnp.ndarray
+            raise ValueError(f"required_sensors: unknown {bad[0]!r} (expected some of {', '.join(known)})")
+        out = base
+        for n in known:
+            on = n in required
+            out = out.with_sensor(n, (base.get(n) or registry.get(n).default_config()) if on else None)
+        return out
 
 
 def build_assets(packed, config: SensorConfig, maps) -> SensorAssets | None:
@@ -102,7 +126,7 @@ def build_assets(packed, config: SensorConfig, maps) -> SensorAssets | None:
       config: SensorConfig.
       maps: {map_id: MapRecord} of the suite (``suite.records.maps``).
     """
-    if config.bev is None:
+    if not config.needs_raster:
         return None
 
     used = sorted({str(m) for m in packed.meta.map_id})
@@ -117,37 +141,27 @@ def assets_axes(assets: SensorAssets | None):
     return SensorAssets(raster=None, map_index=0)
 
 
-def render(config: SensorConfig, *, ego, ego_lw, agents, size, category, ego_row, obstacles, obstacle_height,
-           stop_state, route_xy, route_valid, assets: SensorAssets | None, route_index=None) -> dict:
-    """The enabled sensors of one scenario at one step.
+def render(config: SensorConfig, ctx: SensorContext) -> dict:
+    """The enabled sensors of one scenario at one instant.
 
     Args:
-      ego: ``types.EgoState``.  ego_lw: (2,) m.
-      agents: ``replay.AgentStates`` (A,) at this instant, ego row masked.
-      size: (A, 3) m.  category: (A,) int32.  ego_row: () int32 the ego's own row.
-      obstacles: ``types.Polylines`` (O, V) footprints.  obstacle_height: (O,) m.
-      stop_state: (S,) int32 ``SignalState`` per stop line.
-      route_xy: (R, 2) m; route_valid: (R,) bool.
-      assets: ``SensorAssets`` (required when the BEV is on).
-      route_index: () int32 the ego's progress point on the route: the BEV
-        draws only ``BevConfig.route_window`` around it (None: the whole route).
+      config: SensorConfig (static).
+      ctx: ``SensorContext`` of the instant (its ``scene`` is replaced by
+        ``config.scene``; each sensor gets ``ctx.for_sensor(name)``, its own key).
 
-    Returns: {"bev": (H, W) int32, "lidar": (C, Z) float32} for the enabled ones.
+    Returns: {name: output} of the enabled sensors, e.g. {"bev": (H, W) int32,
+    "lidar": (C, Z) float32} (``Sensor.render``; ``to_observation`` puts it
+    in an ``Observation``).
     """
-    out = {}
-    if config.bev is not None:
-        if assets is None:
-            raise ValueError("SensorConfig.bev is on but no SensorAssets were given (observe.sensors.build_assets)")
-        if route_index is not None:
-            route_xy, route_valid = bev_mod.route_window(route_xy, route_valid, route_index, config.bev)
-        out["bev"] = bev_mod.render_bev_packed(
-            ego_xy=ego.xy, ego_yaw=ego.yaw, ego_lw=ego_lw, agents_xy=agents.xy, agents_yaw=agents.yaw,
-            agents_size=size, agents_category=category, agents_valid=agents.valid, stop_state=stop_state,
-            route_xy=route_xy, route_valid=route_valid, table=assets.raster, map_index=assets.map_index,
-            cfg=config.bev,
-        )
-    if config.lidar is not None:
-        scene = raycast.select_scene(ego.xy, agents, size, category, obstacles, obstacle_height, config.scene,
-                                     exclude=ego_row)
-        out["lidar"] = lidar_mod.lidar_scan(scene, ego.xy, ego.yaw, config.lidar).range
-    return out
+    ctx = ctx.replace(scene=config.scene)
+    return {n: registry.get(n).render(ctx.for_sensor(n), config.get(n)) for n in config.enabled}
+
+
+def to_observation(obs, out: dict):
+    """``obs`` (``types.Observation``) with the ``render`` outputs ``out``:
+    ``bev`` / ``lidar`` in their own slots, every other sensor in ``obs.sensors``."""
+    slots = {n: v for n, v in out.items() if n in registry.SLOTTED}
+    others = {n: v for n, v in out.items() if n not in registry.SLOTTED}
+    if others:
+        slots["sensors"] = others
+    return obs.replace(**slots) if slots else obs

@@ -13,6 +13,10 @@ from drivee2e_jax.observe import camera, lidar, raycast
 
 Array = jnp.ndarray
 
+#: Default sensors (frozen configs, shared).
+DEFAULT_LIDAR = lidar.LidarConfig()
+DEFAULT_CAMERAS = camera.CameraRigConfig()
+
 
 def seen_agents(buf: raycast.PolarBuffer, hits: raycast.BeamHits, num_agents: int) -> Array:
     """(A,) bool from a buffer (..., Z, D) and its beams (..., C, Z): agent rows
@@ -25,14 +29,14 @@ def seen_agents(buf: raycast.PolarBuffer, hits: raycast.BeamHits, num_agents: in
 
 
 def lidar_visible(scene: raycast.RayScene, ego_xy: Array, ego_yaw: Array, num_agents: int,
-                  cfg: lidar.LidarConfig = lidar.LidarConfig()) -> Array:
+                  cfg: lidar.LidarConfig = DEFAULT_LIDAR) -> Array:
     """(A,) bool: agents that are the first hit of at least one LiDAR beam."""
     buf, hits = lidar.lidar_beams(scene, ego_xy, ego_yaw, cfg)
     return seen_agents(buf, hits, num_agents)
 
 
 def camera_visible(scene: raycast.RayScene, ego_xy: Array, ego_yaw: Array, num_agents: int,
-                   cfg: camera.CameraRigConfig = camera.CameraRigConfig()) -> Array:
+                   cfg: camera.CameraRigConfig = DEFAULT_CAMERAS) -> Array:
     """(A,) bool: agents seen by at least one pixel of any camera of the rig."""
     buf, hits = camera.camera_beams(scene, ego_xy, ego_yaw, cfg)
     return seen_agents(buf, hits, num_agents)

@@ -42,7 +42,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from shapely.geometry import Polygon
 
+from drivee2e_jax.polyline import arc_length, polyline_length, resample_polyline, wrap_angle
 from drivee2e_jax.records import MapRecord, RouteRecord, ScenarioRecord, SuiteRecord, TrackRecord
 
 __all__ = [
@@ -92,19 +94,12 @@ class Finding:
 # --------------------------------------------------------------------------
 
 
-def _wrap(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
 def _densify(points: np.ndarray, spacing: float = 1.0) -> np.ndarray:
+    """Even points <= ``spacing`` apart (a zero-length path: its first point only)."""
     p = np.asarray(points, np.float64)
-    if len(p) < 2:
-        return p.copy()
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-    if s[-1] <= 0:
+    if len(p) >= 2 and polyline_length(p) <= 0:
         return p[:1].copy()
-    q = np.linspace(0.0, s[-1], max(2, int(math.ceil(s[-1] / spacing)) + 1))
-    return np.stack([np.interp(q, s, p[:, 0]), np.interp(q, s, p[:, 1])], axis=1)
+    return resample_polyline(p, spacing, dedupe_tol=0.0, count_slack=0.0)
 
 
 def route_lane_match(points: np.ndarray, map_rec: MapRecord) -> tuple[np.ndarray, np.ndarray]:
@@ -148,7 +143,7 @@ def route_lane_match(points: np.ndarray, map_rec: MapRecord) -> tuple[np.ndarray
         q = p[i0:i0 + chunk, None, :]  # (c, 1, 2) against (S, 2) segments
         u = np.clip(np.sum((q - a) * ab, axis=2) / ab2, 0.0, 1.0)
         dist = np.linalg.norm(a + u[..., None] * ab - q, axis=2)
-        ok = (np.abs(_wrap(seg_heading[None, :] - heading[i0:i0 + chunk, None])) <= LANE_ALIGN_MAX) & (dist <= half)
+        ok = (np.abs(wrap_angle(seg_heading[None, :] - heading[i0:i0 + chunk, None])) <= LANE_ALIGN_MAX) & (dist <= half)
         d = np.where(ok, dist, np.inf)
         j = np.argmin(d, axis=1)
         hit = np.isfinite(d[np.arange(len(j)), j])
@@ -163,7 +158,7 @@ def _off_lane_stretches(route: RouteRecord, map_rec: MapRecord) -> tuple[np.ndar
     if len(pts) < 2:
         return pts, []
     lane, _ = route_lane_match(pts, map_rec)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s = arc_length(pts)
     out, start = [], None
     for i, li in enumerate(lane):
         if li < 0 and start is None:
@@ -252,7 +247,7 @@ def track_kinematics(tr: TrackRecord, dt: float) -> tuple[np.ndarray, np.ndarray
     acc, yr = full.copy(), full.copy()
     if len(full) > 2 * h:
         acc[h:-h] = (speed[2 * h:] - speed[:-2 * h]) / (2 * h * dt)
-        yr[h:-h] = _wrap(yaw[2 * h:] - yaw[:-2 * h]) / (2 * h * dt)
+        yr[h:-h] = wrap_angle(yaw[2 * h:] - yaw[:-2 * h]) / (2 * h * dt)
     t = (np.arange(len(full)) + (k.min() if n else 0)) * dt
     return t, speed, acc, yr
 
@@ -290,13 +285,13 @@ def check_route(s: ScenarioRecord, map_rec: MapRecord) -> list[Finding]:
     """The ego's route: long enough, following the lanes (times: the ego's nearest sample)."""
     ego = next((t for t in s.tracks if t.track_id == s.ego_track_id), None)
     out = []
-    length = float(np.sum(np.linalg.norm(np.diff(np.asarray(s.route.waypoints), axis=0), axis=1)))
+    length = polyline_length(s.route.waypoints)
     if length < MIN_ROUTE_LENGTH_M:
         out.append(Finding(s.scenario_id, s.ego_track_id, 0.0, "route",
                            f"route is {length:.1f} m long; expected >= {MIN_ROUTE_LENGTH_M:g} m"))
         return out
     pts, stretches = _off_lane_stretches(s.route, map_rec)
-    s_pts = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    s_pts = arc_length(pts)
     for a, b in stretches:
         if b - a <= MAX_OFF_LANE_M:
             continue
@@ -312,8 +307,6 @@ def check_route(s: ScenarioRecord, map_rec: MapRecord) -> list[Finding]:
 
 def check_overlaps(s: ScenarioRecord) -> list[Finding]:
     """Ego box overlapping another agent's box at the same step (one finding per agent: the first time)."""
-    from shapely.geometry import Polygon
-
     ego = next((t for t in s.tracks if t.track_id == s.ego_track_id), None)
     if ego is None:
         return []

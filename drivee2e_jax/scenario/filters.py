@@ -36,7 +36,10 @@ import numpy as np
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import CATEGORIES, ScenarioRecord, SuiteRecord
-from drivee2e_jax.scenario.pack import LEAVES, PackedBatch, flatten_scenario, track_order, unflatten_scenario
+from drivee2e_jax.scenario.batch import PackedBatch
+from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
+from drivee2e_jax.scenario.pack import track_order
+from drivee2e_jax.scenario.sizes import LEAVES
 
 __all__ = ["FILTER_CATEGORIES", "KEPT_WHEN_VEHICLES", "filter_invisible", "filter_invisible_packed",
            "never_visible", "removable_categories"]
@@ -147,7 +150,7 @@ def filter_invisible_packed(batch: PackedBatch, visible: np.ndarray,
     drop[np.arange(b), ego] = False
     order = np.argsort(drop, axis=1, kind="stable")  # kept rows first (in order), dropped rows last
     freed = np.arange(a)[None, :] >= (a - drop.sum(1))[:, None]
-    for name, (axes, _, pad) in LEAVES.items():
+    for name, (_axes, _, pad) in LEAVES.items():
         if name.startswith("tracks."):
             leaf = flat[name]
             idx = order.reshape(order.shape + (1,) * (leaf.ndim - 2))

@@ -5,7 +5,7 @@ reads a suite folder (``scenario.schema``). Either way the whole suite is
 packed once (``scenario.pack``) and kept in a **packed cache** under
 ``$DRIVEE2E_CACHE`` (default ``~/.cache/drivee2e``; ``DRIVEE2E_CACHE=off``
 disables it): ``suites/<name>-<source>-<key>.npz`` (np.savez, uncompressed,
-one array per ``pack.LEAVES`` name) plus a ``.json`` sidecar with the meta
+one array per ``sizes.LEAVES`` name) plus a ``.json`` sidecar with the meta
 table and category counts. The key hashes the suite name, the generator
 ``VERSION`` (built-in) or the files' paths/sizes/mtimes (folder), the schema
 version and the pack format, so any change rebuilds. Both files are written
@@ -50,18 +50,12 @@ from drivee2e_jax.records import (
     SuiteRecord,
 )
 from drivee2e_jax.scenario import schema
-from drivee2e_jax.scenario.pack import (
-    LEAVES,
-    PACK_FORMAT,
-    PackedBatch,
-    PackSizes,
-    SuiteMeta,
-    bucket,
-    flatten_scenario,
-    pack,
-    resize,
-    unflatten_scenario,
-)
+from drivee2e_jax.scenario.batch import PackedBatch, SuiteMeta, bucket, resize
+from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
+from drivee2e_jax.scenario.pack import PACK_FORMAT, pack
+from drivee2e_jax.scenario.problems import Problem, problems_error
+from drivee2e_jax.scenario.sizes import LEAVES, PackSizes
+from drivee2e_jax.scenario.validate import validate_records
 
 __all__ = ["Suite", "load_suite", "generate_suite", "BUILTIN_SUITES"]
 
@@ -119,10 +113,10 @@ class _Builtin:
         memo = (self.name, self.seed)
         if memo not in _GENERATED:
             rec = self.module().generate(seed=self.seed)
-            problems = schema.validate_records(rec)
+            problems = validate_records(rec)
             if problems:
                 raise DriveE2EError(f"built-in suite {self.name!r} (generator {self.version}) produced an invalid "
-                                    f"record: {schema.problems_error(problems)}")
+                                    f"record: {problems_error(problems)}")
             _GENERATED[memo] = rec
         return _GENERATED[memo]
 
@@ -136,8 +130,8 @@ class _Folder:
         try:
             head = json.loads(head_path.read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise schema.problems_error(
-                [schema.Problem("suite.json", f"line {getattr(e, 'lineno', '?')} column {getattr(e, 'colno', '?')}",
+            raise problems_error(
+                [Problem("suite.json", f"line {getattr(e, 'lineno', '?')} column {getattr(e, 'colno', '?')}",
                                 "valid JSON", getattr(e, "msg", str(e)))], self.path) from None
         head = head if isinstance(head, dict) else {}
         self.name = str(head.get("name") or self.path.name)
@@ -329,9 +323,9 @@ class Suite:
 
     @classmethod
     def from_records(cls, records: SuiteRecord) -> Suite:
-        problems = schema.validate_records(records)
+        problems = validate_records(records)
         if problems:
-            raise schema.problems_error(problems)
+            raise problems_error(problems)
         suite = cls(_Memory(records), cache=False)
         suite._records = records
         return suite

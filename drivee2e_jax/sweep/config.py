@@ -22,7 +22,8 @@ from pathlib import Path
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.tasks import TASKS
-from drivee2e_jax.sim import SCORE_PRESETS
+from drivee2e_jax.eval.variants import VARIANTS
+from drivee2e_jax.metrics.driving_score import SCORE_PRESETS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,7 +98,7 @@ class SimSection:
 
     Attributes:
       dt: simulation step, s (> 0).
-      preset: scoring rules (``sim.SCORE_PRESETS``; paper = DriveE2E's paper).
+      preset: scoring rules (``metrics.driving_score.SCORE_PRESETS``; paper = DriveE2E's paper).
       control_every: query the policy every k sim steps (>= 1).
       latency: action latency, sim steps (>= 0).
       gps_noise_std: GPS position noise of the observation, m (>= 0).
@@ -295,11 +296,7 @@ def _check_values(cfg: SweepConfig, source: str) -> None:
 
 
 def variant_names() -> tuple[str, ...]:
-    """The suite variants ``bench`` knows (only ``complete`` before ``scenario.variants`` exists)."""
-    try:
-        from drivee2e_jax.eval.variants import VARIANTS
-    except ImportError:
-        return ("complete",)
+    """The suite variants ``bench`` knows (``eval.variants.VARIANTS``)."""
     return tuple(VARIANTS)
 
 

@@ -146,7 +146,7 @@ def run_sweep(cfg: SweepConfig, *, force: bool = False, progress: bool = True,
         say(f"{tag}: running")
         log: list[str] = []
 
-        def echo(line: str) -> None:
+        def echo(line: str, log: list[str] = log) -> None:
             log.append(line)
             if line.startswith("["):  # per-policy lines; the tables go to the log and combined.md
                 say(f"  {line}")

@@ -51,7 +51,7 @@ from drivee2e_jax.observe.bev import BevConfig, check_bev
 from drivee2e_jax.observe.sensors import SensorConfig
 from drivee2e_jax.policy import load_policy, reference_policy_dir
 from drivee2e_jax.scenario import load_suite
-from drivee2e_jax.scenario.pack import flatten_dataclass, unflatten_dataclass
+from drivee2e_jax.scenario.flat import flatten_dataclass, unflatten_dataclass
 from drivee2e_jax.sim import SimConfig, Simulator
 
 #: The BEV rendered unless ``DatasetConfig`` sizes it (= the simulator's default).
@@ -151,8 +151,7 @@ def make_recorder(sim, cfg: DatasetConfig, n_records: int, assets_axes=None) -> 
     Sensors render only at recorded steps: the steps in between run a copy
     of ``sim`` with the sensors off (same states, same log-replay actions)."""
     demo = _log_replay_policy()
-    plain = type(sim)(dataclasses.replace(sim.config, sensors=dataclasses.replace(
-        sim.config.sensors, bev=None, lidar=None)))
+    plain = type(sim)(dataclasses.replace(sim.config, sensors=SensorConfig.for_policy((), sim.config.sensors)))
 
     def act(ob):
         return demo.act(None, ob, None, None)[0]
@@ -239,7 +238,7 @@ def build_dataset(suite, split: str, out: str | Path, cfg: DatasetConfig = Datas
         # Pad the last chunk to the same size (one compilation), then drop the pad.
         rows = np.minimum(np.arange(start, start + c), n - 1)
         real = np.arange(start, start + c) < n
-        chunk = jax.tree_util.tree_map(lambda a: a[rows], batch)
+        chunk = jax.tree_util.tree_map(lambda a, rows=rows: a[rows], batch)
         ch_assets = None if assets is None else assets.replace(map_index=jnp.asarray(assets.map_index[rows]))
         samples, keep = run(chunk, keys[rows], ch_assets)
         keep = np.asarray(keep) & real[:, None]

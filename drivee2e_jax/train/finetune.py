@@ -31,7 +31,7 @@ Loss per simulated step (means over active steps and the pool), see
 
 Gradient path: the simulator's step runs exactly (infractions, criteria,
 observation) without gradient; the ego pose gets its gradient from the same
-``dynamics.step``. The observation of the new pose is detached by default
+dynamics step (``SimConfig.dynamics_model.step``). The observation of the new pose is detached by default
 (``obs_gradient``): the loss reaches the parameters through the controls and
 the vehicle dynamics, not through the perception feedback loop.
 
@@ -66,7 +66,7 @@ import optax
 from flax import struct
 
 from drivee2e_jax import controller as ctl
-from drivee2e_jax import dynamics, geometry, replay
+from drivee2e_jax import geometry, replay
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.files import atomic_write_json
 from drivee2e_jax.models import base
@@ -355,7 +355,8 @@ class FineTuner:
         # The simulator's own step, exact and without gradient (infractions,
         # criteria, observation); the gradient takes the same dynamics step.
         state, new_obs, _ = sim.step(scenario, jax.lax.stop_gradient(c.sim), jax.lax.stop_gradient(controls))
-        ego = dynamics.step(c.sim.ego, sanitize_controls(controls)[0], sim.config.dt, sim.config.dynamics)
+        ego = sim.config.dynamics_model.step(c.sim.ego, sanitize_controls(controls)[0], sim.config.dt,
+                                             sim.config.dynamics)
         ego = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), ego, c.sim.ego)
         state = state.replace(ego=jax.tree_util.tree_map(straight_through, state.ego, ego))
         if cfg.obs_gradient:  # the observation of the differentiable pose (same value)
@@ -514,10 +515,10 @@ def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, forc
     bar = bar_of(total=cfg.steps, initial=step, desc="finetune", disable=None if progress else True)
     with open(out / "log.jsonl", "a", encoding="utf-8") as log:
         while step < cfg.steps:
-            (l, (terms, carry)), grads = grad_fn(params, scenarios, idx, carry, st, weights)
+            (loss_value, (terms, carry)), grads = grad_fn(params, scenarios, idx, carry, st, weights)
             params, opt_state, gnorm = update(params, opt_state, grads)
             step += 1
-            loss = float(l)
+            loss = float(loss_value)
             if not np.isfinite(loss):
                 raise DriveE2EError(f"finetune: loss became {loss} at step {step} (lower --lr?)")
             # Restart finished episodes, those too close to their end for a

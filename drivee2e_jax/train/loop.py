@@ -193,9 +193,9 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
             losses = []
             for batch in ds.batches(cfg.batch_size, seed=cfg.seed, epoch=epoch):
                 batch = jax.device_put(batch, batch_sh) if batch_sh is not None else batch
-                params, opt_state, l, metrics = train_step(params, opt_state, batch)
+                params, opt_state, loss_value, metrics = train_step(params, opt_state, batch)
                 step += 1
-                loss = float(l)
+                loss = float(loss_value)
                 losses.append(loss)
                 bar.update(1)
                 bar.set_postfix(loss=f"{loss:.4f}")

@@ -23,6 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import evaluate
@@ -126,14 +128,11 @@ def _run_suite(run_dir: Path) -> str:
 def plot_trend(rows: list[dict], path: Path, title: str = "") -> None:
     """Two panels against the epoch: open-loop L2 1 s / 2 s (+ collision rate,
     right axis) on the left, closed-loop SR / DS on the right."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     ep = [r["epoch"] for r in rows]
     val = lambda k: [np.nan if r.get(k) is None else r[k] for r in rows]  # noqa: E731
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig = Figure(figsize=(10, 3.8))
+    FigureCanvasAgg(fig)
+    a, b = fig.subplots(1, 2)
     a.plot(ep, val("l2_1s"), "o-", label="L2 @ 1 s")
     a.plot(ep, val("l2_2s"), "s-", label="L2 @ 2 s")
     a.set_xlabel("epoch")
@@ -158,4 +157,3 @@ def plot_trend(rows: list[dict], path: Path, title: str = "") -> None:
         fig.suptitle(title)
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110), binary=True)
-    plt.close(fig)

@@ -6,7 +6,8 @@ file, so the encodings trade a little precision for size:
 * coordinates rounded to 1 cm (``round_list``), invalid samples as ``null``;
 * polylines / polygons as flat ``[x0, y0, x1, y1, ...]`` lists;
 * the BEV as one PNG data URI per kept frame, its binary channels composited
-  in fixed colours (later channels paint over earlier ones);
+  in fixed colours (later channels paint over earlier ones; the palette and
+  encoder are ``observe.palette``'s, shared with the MCAP export);
 * LiDAR points as base64 of little-endian int16 ego-frame x, y (``LIDAR_SCALE``
   metres per unit) plus base64 uint8 hit classes, at most ``max_points`` a frame.
 """
@@ -14,23 +15,18 @@ file, so the encodings trade a little precision for size:
 from __future__ import annotations
 
 import base64
-import io
 
 import numpy as np
-from PIL import Image
+
+# The BEV palette and encoder are shared with the MCAP export (``observe.palette``).
+from drivee2e_jax.observe.palette import BEV_COLORS, channel_color, composite_bev
+from drivee2e_jax.observe.png import png_bytes
+
+__all__ = ["BEV_COLORS", "LIDAR_SCALE", "channel_color", "composite_bev", "encode_lidar_points", "flat_points",
+           "png_data_uri", "round_list"]
 
 #: Metres per int16 unit of an encoded LiDAR point (+-327 m range at 1 cm).
 LIDAR_SCALE = 0.01
-
-#: RGB of each BEV channel name (``observe.bev.ALL_CHANNELS``); history channels
-#: (``vehicle@-1``) reuse their base colour, dimmed.
-BEV_COLORS = {
-    "drivable": (52, 55, 61), "lane": (90, 96, 110), "solid": (232, 232, 232), "dashed": (170, 170, 170),
-    "road_edge": (185, 190, 199), "crosswalk": (120, 120, 130), "obstacle": (120, 90, 60),
-    "stop_line": (154, 160, 166), "stop_red": (255, 59, 48), "stop_yellow": (255, 204, 0),
-    "stop_green": (52, 199, 89), "route": (50, 100, 190), "vehicle": (78, 154, 241),
-    "pedestrian": (242, 101, 95), "cyclist": (92, 208, 108), "ego": (255, 159, 26),
-}
 
 
 def round_list(a, decimals: int = 2, valid=None) -> list:
@@ -58,29 +54,10 @@ def flat_points(xy, point_valid=None, decimals: int = 2) -> list[float]:
     return np.round(xy[keep], decimals).reshape(-1).tolist()
 
 
-def composite_bev(bev, channels) -> np.ndarray:
-    """(H, W, C) channel stack (bool or [0, 1] floats) -> (H, W, 3) uint8 picture.
-
-    Channels paint in order (a pixel takes the colour of the last channel that
-    is on, blended by its value); unknown names are drawn grey."""
-    bev = np.asarray(bev, dtype=np.float32)
-    if bev.ndim != 3 or bev.shape[-1] != len(channels):
-        raise ValueError(f"BEV: expected (H, W, {len(channels)}) for channels {list(channels)}, got {bev.shape}")
-    img = np.zeros(bev.shape[:2] + (3,), np.float32)
-    for c, name in enumerate(channels):
-        base, _, back = name.partition("@")
-        colour = np.array(BEV_COLORS.get(base, (128, 128, 128)), np.float32) * (0.5 if back else 1.0)
-        a = np.clip(bev[..., c], 0.0, 1.0)[..., None]
-        img = img * (1.0 - a) + colour * a
-    return np.clip(img + 0.5, 0, 255).astype(np.uint8)
-
-
 def png_data_uri(rgb: np.ndarray) -> str:
     """(H, W, 3) uint8 -> ``data:image/png;base64,...``."""
 
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8), "RGB").save(buf, format="PNG", optimize=True)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return "data:image/png;base64," + base64.b64encode(png_bytes(rgb)).decode("ascii")
 
 
 def encode_lidar_points(xy, hit_class, max_points: int, rng: np.random.Generator) -> dict:

@@ -13,7 +13,11 @@ Host side only. An episode record (all coordinates world frame, m, rounded to
     metrics: [{name, label, unit, values: [n], range?: [lo, hi], color?}],
     events:  [{type, t, x, y, frame, ...}]  the stored infraction events,
     bev:     {stride, channels, colors, frames: [PNG data URI]} or null,
-    lidar:   {stride, range, scale, frames: [{xy, c}]} or null  (``encode``).
+    lidar:   {stride, range, scale, frames: [{xy, c}]} or null  (``encode``),
+    sensors: [{name, display: "image", stride, frames: [PNG data URI]} or
+              {name, display: "pointcloud", stride, range, scale, frames: [{xy, c}]}]
+             the trace's other registered sensors (``trace.sensors``, shown as
+             their ``observe.registry`` entry's ``display`` says; "none" left out).
 
 Sensor frames are kept every ``stride`` frames (the player shows the latest
 one at or before the current frame) to keep the file small.
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivee2e_jax.observe import registry
 from drivee2e_jax.observe.raycast import HIT_AGENT
 from drivee2e_jax.types import Category, Marking, SignalState
 from drivee2e_jax.viz import encode
@@ -149,6 +154,34 @@ def lidar_payload(trace, stride: int, max_points: int, seed: int = 0) -> dict | 
             "frames": frames}
 
 
+def sensor_panes(trace, image_stride: int, points_stride: int, max_points: int, seed: int = 0) -> list[dict]:
+    """One pane per sensor of ``trace.sensors`` (``observe.sensor_api.SensorFrames``)
+    with a display: "image" frames as PNG data URIs of ``Sensor.image``,
+    "pointcloud" frames as ``encode.encode_lidar_points`` of ``Sensor.points``
+    (x, y of the ego frame). Sensors no longer registered are skipped."""
+    panes = []
+    for name, sf in (getattr(trace, "sensors", None) or {}).items():
+        if name not in registry.names():
+            continue
+        sensor = registry.get(name)
+        n = len(np.asarray(trace.times))
+        if sensor.display == "image":
+            frames = [encode.png_data_uri(sensor.image(sf.frame(k), sf.config)) for k in range(0, n, image_stride)]
+            panes.append({"name": name, "display": "image", "stride": image_stride, "frames": frames})
+        elif sensor.display == "pointcloud":
+            rng = np.random.default_rng(seed)
+            frames, reach = [], 1.0
+            for k in range(0, n, points_stride):
+                xyz, cls = sensor.points(sf.frame(k), sf.config)
+                xy = np.asarray(xyz, np.float64)[:, :2]
+                if len(xy):
+                    reach = max(reach, float(np.abs(xy).max()))
+                frames.append(encode.encode_lidar_points(xy, cls, max_points, rng))
+            panes.append({"name": name, "display": "pointcloud", "stride": points_stride,
+                          "range": float(np.ceil(min(reach, 100.0))), "scale": encode.LIDAR_SCALE, "frames": frames})
+    return panes
+
+
 def _stride(dt: float, period_s: float) -> int:
     return max(1, int(round(period_s / dt)))
 
@@ -159,8 +192,9 @@ def episode_payload(trace, *, sensors: bool = True, bev_period_s: float = 0.2, l
 
     Args:
       trace: ``io.episodes.EpisodeTrace``.
-      sensors: embed the BEV / LiDAR frames the trace carries.
-      bev_period_s, lidar_period_s: keep one sensor frame per this many seconds.
+      sensors: embed the BEV / LiDAR / other sensors' frames the trace carries.
+      bev_period_s, lidar_period_s: keep one sensor frame per this many
+        seconds (other sensors: image ones as the BEV, point clouds as the LiDAR).
       lidar_max_points: random subset of returns kept per LiDAR frame.
     """
     times = np.asarray(trace.times, np.float64)
@@ -187,5 +221,7 @@ def episode_payload(trace, *, sensors: bool = True, bev_period_s: float = 0.2, l
         "events": events_payload(trace.events, times),
         "bev": bev_payload(trace, _stride(trace.dt, bev_period_s)) if sensors else None,
         "lidar": lidar_payload(trace, _stride(trace.dt, lidar_period_s), lidar_max_points) if sensors else None,
+        "sensors": sensor_panes(trace, _stride(trace.dt, bev_period_s), _stride(trace.dt, lidar_period_s),
+                                lidar_max_points) if sensors else [],
     }
     return ep, map_id, map_payload(trace.map)

@@ -37,8 +37,8 @@ SIZES = {0: (4.5, 1.9), 1: (9.0, 2.5), 2: (12.0, 2.6), 3: (5.0, 2.0), 4: (2.1, 0
 
 def _maps(quick: bool):
     if quick:
-        sys.path.insert(0, str(ROOT / "tests"))
-        from conftest import build_tiny_suite
+        sys.path.insert(0, str(ROOT))
+        from tests.helpers.tiny_suite import build_tiny_suite
 
         return build_tiny_suite().maps
     import drivee2e_jax as de

@@ -1,86 +1,41 @@
 """Host-side aggregation: B2D-01 merge and global statistics, LB-10 (when its
 routes are available), and hand-built checks of every rule.
 
-``check_b2d01_aggregation`` and ``check_lb10`` take case dicts and are shared
-with ``test_metric_cases.py``.
+``check_b2d01_aggregation`` and ``check_lb10`` take case dicts; they live in
+``tests/helpers/metric_cases/aggregate.py``, shared with ``test_metric_cases.py``.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
-import jax
-import numpy as np
 import pytest
 
 from drivee2e_jax.metrics.aggregate import (
     DRIVEE2E_ABILITIES,
     RouteResult,
     b2d_efficiency,
-    b2d_merge,
     drivee2e_ability,
     drivee2e_merge,
     lb_global,
     records_from_scores,
 )
 from drivee2e_jax.metrics.driving_score import ScoreConfig, outcome_from_events
-
-
-def sibling(name: str):
-    """Import a sibling test module by path (no package, no conftest needed)."""
-    key = f"_drivee2e_metrics_tests_{name}"
-    if key not in sys.modules:
-        spec = importlib.util.spec_from_file_location(key, Path(__file__).with_name(f"{name}.py"))
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[key] = mod
-        spec.loader.exec_module(mod)
-    return sys.modules[key]
-
-
-def stack(scores):
-    return jax.tree_util.tree_map(lambda *a: np.stack(a), *scores)
-
+from tests.helpers.metric_cases import driving_score as driving_score_cases
+from tests.helpers.metric_cases import subset_case
+from tests.helpers.metric_cases.aggregate import b2d01_records, check_b2d01_aggregation, stack
 
 # ---------------------------------------------------------------------------
 # B2D-01: merge and global statistics
 # ---------------------------------------------------------------------------
 
 
-def b2d01_records(case: dict) -> list[RouteResult]:
-    ds = sibling("test_driving_score")
-    scores = ds.check_b2d01_routes(case)
-    routes = [r for r, _ in ds.b2d01_outcomes(case)]
-    return records_from_scores(
-        stack(scores),
-        [r["route_id"] for r in routes],
-        [r["route_length_m"] for r in routes],
-        categories=[r["scenario_type"] for r in routes],
-    )
-
-
-def check_b2d01_aggregation(case: dict) -> None:
-    exp, tol = case["expected"], case["tolerance"]["abs"]
-    records = b2d01_records(case)
-    merged = b2d_merge(records, planned_routes=case["input"]["benchmark_total_routes"])
-    assert merged["driving score"] == pytest.approx(exp["driving_score"], abs=tol)
-    assert merged["success rate"] == pytest.approx(exp["success_rate_fraction"], abs=tol)
-    assert merged["success"] == exp["success_per_route"]
-    per_km = lb_global(records, planned_routes=len(case["input"]["routes"]))["infractions"]
-    want = exp["global_infractions_per_km_b2d_statistics_manager"]
-    assert per_km.keys() == want.keys()
-    for k, v in want.items():
-        assert per_km[k] == pytest.approx(v, abs=tol), k
-
-
 def test_b2d01_merge_and_global():
-    check_b2d01_aggregation(sibling("test_driving_score").subset_case("B2D-01"))
+    check_b2d01_aggregation(subset_case("B2D-01"))
 
 
 def test_b2d_efficiency_on_b2d01():
-    records = b2d01_records(sibling("test_driving_score").subset_case("B2D-01"))
+    records = b2d01_records(subset_case("B2D-01"))
     # Routes with min-speed entries: (120 + 95.5) / 2, 100, 60 (1500 ignored), 80.
     assert b2d_efficiency(records) == pytest.approx((107.75 + 100 + 60 + 80) / 4, abs=1e-12)
     bad = RouteResult("r", 1.0, 100, 1, 100, "Completed", {"min_speed_infractions": 1}, min_speed_pct=(1500.0,))
@@ -91,44 +46,6 @@ def test_b2d_efficiency_on_b2d01():
 # ---------------------------------------------------------------------------
 # LB-10: global aggregation over LB-01 .. LB-09
 # ---------------------------------------------------------------------------
-
-LB10_ROUTES = [f"LB-0{i}" for i in range(1, 10)]
-
-
-def lb_records(cases_by_id: dict, cfg: ScoreConfig) -> list[RouteResult]:
-    ds = sibling("test_driving_score")
-    records = []
-    for cid in LB10_ROUTES:
-        inp = cases_by_id[cid]["input"]
-        s = ds.score64(outcome_from_events(inp["events"], route_timeout=inp["route_timeout"], checkpoints=4), cfg)
-        records.extend(records_from_scores(stack([s]), [cid], [inp["route_length_m"]]))
-    return records
-
-
-def check_lb10(case: dict, cases_by_id: dict) -> None:
-    missing = [c for c in LB10_ROUTES if c not in cases_by_id]
-    if missing:
-        pytest.skip(f"LB-10 aggregates LB-01..LB-09; {', '.join(missing)} not in metric_cases.json")
-    exp, tol = case["expected"], case["tolerance"]["abs"]
-    records = lb_records(cases_by_id, ScoreConfig.lb20())
-    for planned in case["input"]["planned_total_routes"]:
-        g, want = lb_global(records, planned), exp[f"planned_{planned}"]
-        for k, v in want["scores_mean"].items():
-            assert g["scores_mean"][k] == pytest.approx(v, abs=tol), (planned, k)
-        for k, v in want["scores_std_dev"].items():
-            assert g["scores_std_dev"][k] == pytest.approx(v, abs=1e-9), (planned, k)
-        for k, v in want["infractions_per_km"].items():
-            assert g["infractions"][k] == pytest.approx(v, abs=1e-9), (planned, k)
-        if "status" in want:
-            assert g["status"] == want["status"]
-        if "total_length_m" in want:
-            assert g["meta"]["total_length"] == pytest.approx(want["total_length_m"], abs=tol)
-    v21 = case.get("variant_lb21_expected", {}).get("planned_9_scores_mean")
-    if v21:
-        g = lb_global(lb_records(cases_by_id, ScoreConfig.lb21()), 9)
-        for k, v in v21.items():
-            assert g["scores_mean"][k] == pytest.approx(v, abs=tol), k
-
 
 # ---------------------------------------------------------------------------
 # Hand-built LB 2.0 global statistics
@@ -201,7 +118,7 @@ def test_drivee2e_merge_and_ability():
 
 
 def test_records_from_scores_roundtrip():
-    ds = sibling("test_driving_score")
+    ds = driving_score_cases
     events = [
         [{"type": "ROUTE_COMPLETION", "route_completed": 100}, {"type": "MIN_SPEED_INFRACTION", "percentage": 80.0}],
         [{"type": "ROUTE_COMPLETION", "route_completed": 30.0}, {"type": "ROUTE_DEVIATION"},

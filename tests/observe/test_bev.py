@@ -238,7 +238,7 @@ def _moved_map(m: MapRecord, rot, shift) -> MapRecord:
     f = lambda p: np.asarray(p, float) @ rot.T + shift  # noqa: E731
     return dataclasses.replace(
         m, map_id=m.map_id + "_moved",
-        lanes=[dataclasses.replace(l, centerline=f(l.centerline)) for l in m.lanes],
+        lanes=[dataclasses.replace(lane, centerline=f(lane.centerline)) for lane in m.lanes],
         boundaries=[dataclasses.replace(b, points=f(b.points)) for b in m.boundaries],
         crosswalks=[f(c) for c in m.crosswalks],
         stop_lines=[dataclasses.replace(s, points=f(s.points)) for s in m.stop_lines],

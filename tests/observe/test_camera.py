@@ -9,11 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import assume, given, settings
-from ray_oracle import beam, clipped, faces, jax_scene, scenes, shapes
 from shapely.geometry import Point, Polygon
 
 from drivee2e_jax import geometry as geo
 from drivee2e_jax.observe import camera, raycast
+from tests.helpers.ray_oracle import beam, clipped, faces, jax_scene, scenes, shapes
 
 RIG = camera.CameraRigConfig(cameras=(camera.CameraConfig("front", (1.7, 0.0, 1.5), 0.0, 70.0, 16, 9),
                                       camera.CameraConfig("back", (-1.0, 0.2, 1.6), 180.0, 110.0, 16, 9)))

@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from hypothesis import assume, given, settings
-from ray_oracle import beam, clipped, f32, faces, jax_scene, scenes, shapes
 from shapely.geometry import Point, Polygon
 
 from drivee2e_jax import geometry as geo
 from drivee2e_jax.observe import lidar, raycast
+from tests.helpers.ray_oracle import beam, clipped, f32, faces, jax_scene, scenes, shapes
 
 # Horizontal beam (0 deg) checked exactly; sloped ones by the height rule.
 CFG = lidar.LidarConfig(channels=7, azimuth_bins=72, elevations_deg=(-30.0, -12.0, -3.0, 0.0, 2.0, 5.0, 10.0),

@@ -7,9 +7,9 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from ray_oracle import jax_scene
 
 from drivee2e_jax.observe import radar, raycast
+from tests.helpers.ray_oracle import jax_scene
 
 RIG = radar.RadarRigConfig(radars=(radar.RadarConfig("front", (3.0, 0.0, 0.5), 0.0, 90.0, 91),
                                    radar.RadarConfig("back_left", (-1.0, 0.8, 0.5), 150.0, 90.0, 91)),

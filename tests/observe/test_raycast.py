@@ -8,11 +8,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from hypothesis import assume, given, settings
-from ray_oracle import clipped, corners, f32, faces, jax_scene, scenes, shapes
 from shapely.geometry import LineString, Point, Polygon
 
 from drivee2e_jax import geometry as geo
 from drivee2e_jax.observe import raycast
+from tests.helpers.ray_oracle import clipped, corners, f32, faces, jax_scene, scenes, shapes
 
 
 @settings(max_examples=25, deadline=None)

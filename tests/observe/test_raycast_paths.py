@@ -22,10 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from ray_oracle import f32, jax_scene, scenes
 
 from drivee2e_jax import geometry as geo
 from drivee2e_jax.observe import raycast
+from tests.helpers.ray_oracle import f32, jax_scene, scenes
 
 Z = 72
 _CFG = raycast.BufferConfig(depth=3, agent_tiers=((0, 10.0), (3, 40.0), (1, 180.0)),
@@ -62,7 +62,7 @@ def _reference(scene, origin, heading, cfg, z):
     if e:
         a, b = scene.edge_a, scene.edge_b
         seg = jax.vmap(over_rays(geo.ray_segment_distance), (None, None, 0, 0))(origin, dirs, a, b)
-        facing = geo._cross(b - a, origin - a) * scene.edge_orient < 0
+        facing = geo.cross2(b - a, origin - a) * scene.edge_orient < 0
         seg = jnp.where((scene.edge_valid & facing)[:, None], seg, jnp.inf)
         groups.append((jnp.stack([a, b], 1), scene.edge_valid, cfg.edge_tiers, k, seg))
     cands = [set() for _ in range(z)]  # per ray: (key, range)
@@ -71,16 +71,16 @@ def _reference(scene, origin, heading, cfg, z):
         lo, span = jax.vmap(raycast._angular_extent, (0, None))(points - origin, heading)
         start, count = jax.vmap(raycast._first_ray, (0, 0, None, None))(lo, span, az, True)
         count = np.where(np.asarray(valid), np.asarray(count), -1)
-        keys = np.asarray(raycast._pack(dist, (id0 + jnp.arange(n))[:, None], id_bits, 85.0))
+        keys = np.asarray(raycast.pack_key(dist, (id0 + jnp.arange(n))[:, None], id_bits, 85.0))
         dist = np.asarray(dist)
         order = sorted(range(n), key=lambda i: (-count[i], i))
         width = _widths(tiers, n, 2 * np.pi / z, z)
         for rank, i in enumerate(order):
             for off in range(width[rank]):
                 j = (int(start[i]) + off) % z
-                if keys[i, j] != raycast._MISS:
+                if keys[i, j] != raycast.MISS:
                     cands[j].add((int(keys[i, j]), float(dist[i, j])))
-    keys = np.full((z, cfg.depth), raycast._MISS, np.int64)
+    keys = np.full((z, cfg.depth), raycast.MISS, np.int64)
     rng = np.full((z, cfg.depth), np.inf)
     for j in range(z):
         for d, (key, r) in enumerate(sorted(cands[j])[: cfg.depth]):
@@ -97,7 +97,7 @@ def test_polar_buffer_equals_window_rule(sc):
     keys, rng = _reference(scene, origin, heading, _CFG, Z)
     k = scene.num_agents
     id_bits = max(1, (k + scene.num_edges - 1).bit_length())
-    want_obj = np.where(keys != raycast._MISS, keys & ((1 << id_bits) - 1), -1)
+    want_obj = np.where(keys != raycast.MISS, keys & ((1 << id_bits) - 1), -1)
     np.testing.assert_array_equal(np.asarray(buf.object), want_obj)
     # Same formulas, compiled differently (jit vs op by op): float32 rounding only.
     np.testing.assert_allclose(np.asarray(buf.range), rng, rtol=2e-5, atol=2e-5)

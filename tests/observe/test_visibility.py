@@ -6,9 +6,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from hypothesis import given, settings
-from ray_oracle import A_PAD, jax_scene, scenes
 
 from drivee2e_jax.observe import camera, lidar, visibility
+from tests.helpers.ray_oracle import A_PAD, jax_scene, scenes
 
 LCFG = lidar.LidarConfig(channels=8, azimuth_bins=90)
 RIG = camera.CameraRigConfig(cameras=(

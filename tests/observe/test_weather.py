@@ -5,9 +5,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from ray_oracle import jax_scene
 
 from drivee2e_jax.observe import lidar, weather
+from tests.helpers.ray_oracle import jax_scene
 
 
 def test_clear_is_identity_and_fog_cuts_range():

@@ -9,7 +9,8 @@ import pytest
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.filters import filter_invisible, never_visible
-from drivee2e_jax.scenario.pack import flatten_scenario, pack
+from drivee2e_jax.scenario.flat import flatten_scenario
+from drivee2e_jax.scenario.pack import pack
 from drivee2e_jax.scenario.schema import read_suite, validate_suite, write_suite
 
 # packed track order (ego first, then by track id) of the tiny suite:

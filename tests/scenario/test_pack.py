@@ -11,21 +11,11 @@ from hypothesis import strategies as st
 
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario.pack import (
-    LEAVES,
-    PackedBatch,
-    PackSizes,
-    SuiteMeta,
-    bucket,
-    densify_route,
-    flatten_scenario,
-    pack,
-    pack_buckets,
-    padding_efficiency,
-    resize,
-    route_commands,
-    unpack,
-)
+from drivee2e_jax.scenario.batch import PackedBatch, SuiteMeta, bucket, padding_efficiency, resize
+from drivee2e_jax.scenario.flat import flatten_scenario
+from drivee2e_jax.scenario.pack import pack, pack_buckets, unpack
+from drivee2e_jax.scenario.routes import densify_route, route_commands
+from drivee2e_jax.scenario.sizes import LEAVES, PackSizes
 
 C = types.Command
 

@@ -10,13 +10,9 @@ import pytest
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import SuiteRecord
-from drivee2e_jax.scenario.schema import (
-    Problem,
-    read_suite,
-    validate_records,
-    validate_suite,
-    write_suite,
-)
+from drivee2e_jax.scenario.problems import Problem
+from drivee2e_jax.scenario.schema import read_suite, validate_suite, write_suite
+from drivee2e_jax.scenario.validate import validate_records
 
 
 def _files(folder):

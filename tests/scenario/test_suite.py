@@ -13,7 +13,7 @@ from drivee2e_jax import files
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario import Suite, load_suite, pack
 from drivee2e_jax.scenario import suite as suite_mod
-from drivee2e_jax.scenario.pack import flatten_scenario
+from drivee2e_jax.scenario.flat import flatten_scenario
 from drivee2e_jax.scenario.schema import read_suite, write_suite
 
 
@@ -43,7 +43,7 @@ def fake_twin15(monkeypatch, tiny_suite):
 
     def generate(seed=0):
         mod.calls.append(seed)
-        from conftest import build_tiny_suite
+        from tests.helpers.tiny_suite import build_tiny_suite
 
         rec = build_tiny_suite()
         rec.name = "twin15"

@@ -115,7 +115,7 @@ def test_weather_and_time_of_day_mix(suite):
 
 
 def test_records_pass_schema_validation(suite):
-    from drivee2e_jax.scenario.schema import validate_records
+    from drivee2e_jax.scenario.validate import validate_records
 
     problems = validate_records(suite)
     assert not problems, problems[:5]

@@ -8,7 +8,6 @@ Needs Debian's ``chromium`` (``/usr/bin/chromium``) and Playwright for Python
 from __future__ import annotations
 
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
@@ -23,10 +22,8 @@ ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--d
 @pytest.fixture(scope="module")
 def player(tmp_path_factory):
     """A results folder of the expert on the tiny suite's 2 train scenarios, and its player."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from conftest import build_tiny_suite
-
     from drivee2e_jax.scenario.schema import write_suite
+    from tests.helpers.tiny_suite import build_tiny_suite
 
     root = tmp_path_factory.mktemp("viewer")
     suite = write_suite(build_tiny_suite(), root / "tiny")
@@ -81,7 +78,7 @@ def test_player_controls_in_headless_chromium(player, browser, tmp_path):
 
     page.locator("#scrub").fill(str(n - 1))
     assert frame() == n - 1
-    assert "frame %d/%d" % (n, n) in page.inner_text("#frame-label")
+    assert f"frame {n}/{n}" in page.inner_text("#frame-label")
 
     # An infraction marker on the timeline jumps to its frame.
     markers = page.evaluate("window.player.state.markers")

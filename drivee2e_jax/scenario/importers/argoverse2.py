@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.polyline import polyline_length, resample_polyline
 from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
@@ -139,10 +140,14 @@ def _points(obj, where: str) -> np.ndarray:
     return p
 
 
+def _even(p: np.ndarray, spacing: float) -> np.ndarray:
+    """``p`` at even spacing, no de-duplication or count slack (as imported so far)."""
+    return resample_polyline(p, spacing, dedupe_tol=0.0, count_slack=0.0)
+
+
 def _mean_width(left: np.ndarray, right: np.ndarray) -> float:
     n = 20
-    a, b = common.resample_polyline(left, common.polyline_length(left) / n + 1e-9), \
-        common.resample_polyline(right, common.polyline_length(right) / n + 1e-9)
+    a, b = _even(left, polyline_length(left) / n + 1e-9), _even(right, polyline_length(right) / n + 1e-9)
     m = min(len(a), len(b))
     a = a[np.linspace(0, len(a) - 1, m).astype(int)]
     b = b[np.linspace(0, len(b) - 1, m).astype(int)]
@@ -151,8 +156,8 @@ def _mean_width(left: np.ndarray, right: np.ndarray) -> float:
 
 def _centerline(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     n = max(len(left), len(right), 2)
-    a = common.resample_polyline(left, common.polyline_length(left) / (n - 1) + 1e-9)
-    b = common.resample_polyline(right, common.polyline_length(right) / (n - 1) + 1e-9)
+    a = _even(left, polyline_length(left) / (n - 1) + 1e-9)
+    b = _even(right, polyline_length(right) / (n - 1) + 1e-9)
     m = min(len(a), len(b))
     a = a[np.linspace(0, len(a) - 1, m).astype(int)]
     b = b[np.linspace(0, len(b) - 1, m).astype(int)]

@@ -283,7 +283,7 @@ def load_map(path: Path, map_id: str, origin: tuple[float, float] = (0.0, 0.0)) 
     users: dict[int, list[int]] = {}  # regulatory element -> lanelets naming it
     for rid, (members, tags) in osm.relations.items():
         if tags.get("type") == "lanelet":
-            for typ, ref, role in members:
+            for _typ, ref, role in members:
                 if role == "regulatory_element" and rid in by_id:
                     users.setdefault(ref, []).append(rid)
     for rid, (members, tags) in osm.relations.items():

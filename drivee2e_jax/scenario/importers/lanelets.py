@@ -32,15 +32,16 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import shapely
 
+from drivee2e_jax.polyline import arc_length, polyline_heading, resample_at_fractions, wrap_angle
 from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord, StopLineRecord
-from drivee2e_jax.scenario.importers.common import infer_successors
+from drivee2e_jax.scenario.importers.maps import infer_successors
 
 __all__ = [
     "Lanelet",
     "StopLineSpec",
     "orient_bounds",
-    "resample_fraction",
     "midline",
     "simplify",
     "assemble_map",
@@ -90,20 +91,6 @@ class StopLineSpec:
 # --------------------------------------------------------------------------
 
 
-def _arc(xy: np.ndarray) -> np.ndarray:
-    return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
-
-
-def resample_fraction(xy: np.ndarray, frac: np.ndarray) -> np.ndarray:
-    """Points at arc-length fractions ``frac`` (k,) in [0, 1] of polyline xy (n, 2)."""
-    xy = np.asarray(xy, np.float64)
-    s = _arc(xy)
-    if s[-1] <= 0.0:
-        return np.repeat(xy[:1], len(frac), axis=0)
-    q = np.asarray(frac) * s[-1]
-    return np.stack([np.interp(q, s, xy[:, 0]), np.interp(q, s, xy[:, 1])], axis=1)
-
-
 def orient_bounds(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
     """Put both bounds in one direction, with ``left`` on the left of travel.
 
@@ -120,7 +107,7 @@ def orient_bounds(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.n
         right = right[::-1]
     mid = midline(left, right, 2)
     d = mid[-1] - mid[0]
-    off = resample_fraction(left, np.array([0.5]))[0] - resample_fraction(right, np.array([0.5]))[0]
+    off = resample_at_fractions(left, np.array([0.5]))[0] - resample_at_fractions(right, np.array([0.5]))[0]
     flipped = bool(d[0] * off[1] - d[1] * off[0] < 0.0)
     if flipped:
         left, right = right[::-1], left[::-1]
@@ -132,37 +119,24 @@ def midline(left: np.ndarray, right: np.ndarray, n: int | None = None, spacing: 
     fraction; ``n`` defaults to one point per ``spacing`` m (at least the
     larger bound's point count)."""
     if n is None:
-        length = max(_arc(np.asarray(left))[-1], _arc(np.asarray(right))[-1])
+        length = max(arc_length(np.asarray(left))[-1], arc_length(np.asarray(right))[-1])
         n = max(len(left), len(right), int(math.ceil(length / spacing)) + 1, 2)
     frac = np.linspace(0.0, 1.0, n)
-    return 0.5 * (resample_fraction(left, frac) + resample_fraction(right, frac))
+    return 0.5 * (resample_at_fractions(left, frac) + resample_at_fractions(right, frac))
+
+
+def _end_heading(xy: np.ndarray) -> float:
+    """Heading over the last 2 m of a centreline (steadier than its last segment)."""
+    return polyline_heading(xy, at_end=True, over_m=2.0)
 
 
 def simplify(xy: np.ndarray, tol: float = 0.05) -> np.ndarray:
     """Douglas-Peucker simplification (keeps both ends); (k, 2)."""
-    import shapely
-
     xy = np.asarray(xy, np.float64)
     if len(xy) <= 2:
         return xy
     keep = np.asarray(shapely.LineString(xy).simplify(tol, preserve_topology=False).coords)
     return keep if len(keep) >= 2 else xy[[0, -1]]
-
-
-def _heading(xy: np.ndarray, at_end: bool) -> float:
-    s = _arc(xy)
-    if s[-1] <= 0:
-        return 0.0
-    if at_end:
-        q = resample_fraction(xy, np.array([max(0.0, 1.0 - 2.0 / s[-1]), 1.0]))
-    else:
-        q = resample_fraction(xy, np.array([0.0, min(1.0, 2.0 / s[-1])]))
-    d = q[1] - q[0]
-    return math.atan2(d[1], d[0])
-
-
-def _angle_diff(a: float, b: float) -> float:
-    return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
 
 
 # --------------------------------------------------------------------------
@@ -180,18 +154,16 @@ class _Lane:
 
 def _build_lane(ll: Lanelet) -> _Lane:
     n = max(len(ll.left), len(ll.right), 2)
-    length = max(_arc(ll.left)[-1], _arc(ll.right)[-1])
+    length = max(arc_length(ll.left)[-1], arc_length(ll.right)[-1])
     n = max(n, int(math.ceil(length / 1.0)) + 1)
     frac = np.linspace(0.0, 1.0, n)
-    lp, rp = resample_fraction(ll.left, frac), resample_fraction(ll.right, frac)
+    lp, rp = resample_at_fractions(ll.left, frac), resample_at_fractions(ll.right, frac)
     center = simplify(0.5 * (lp + rp))
     width = float(np.mean(np.linalg.norm(lp - rp, axis=1)))
     return _Lane(src=ll, center=center, width=width)
 
 
 def _infer_connectors(lanes: list[_Lane]) -> None:
-    import shapely
-
     veh = [ln for ln in lanes if ln.src.type in VEHICLE_TYPES]
     lines = [shapely.LineString(ln.center) for ln in veh]
     tree = shapely.STRtree(lines)
@@ -205,7 +177,7 @@ def _infer_connectors(lanes: list[_Lane]) -> None:
                 continue
             b = veh[j]
             same_start = np.linalg.norm(a.center[0] - b.center[0]) < 0.5
-            turn = _angle_diff(_heading(a.center, True), _heading(b.center, True))
+            turn = abs(float(wrap_angle(_end_heading(a.center) - _end_heading(b.center))))
             if same_start and np.linalg.norm(a.center[-1] - b.center[-1]) > 2.0 and turn > math.radians(30.0):
                 a.connector = True  # paths that part at a junction entry (not a lane added alongside)
                 break
@@ -223,7 +195,7 @@ def _infer_connectors(lanes: list[_Lane]) -> None:
 def _boundary_key(pts: np.ndarray) -> tuple:
     a, b = np.round(pts[0], 1), np.round(pts[-1], 1)
     lo, hi = sorted([tuple(a), tuple(b)])
-    return (lo, hi, len(pts), round(float(_arc(pts)[-1]), 1))
+    return (lo, hi, len(pts), round(float(arc_length(pts)[-1]), 1))
 
 
 def _boundaries(lanes: list[_Lane], extra: list[BoundaryRecord]) -> list[BoundaryRecord]:
@@ -245,8 +217,6 @@ def _boundaries(lanes: list[_Lane], extra: list[BoundaryRecord]) -> list[Boundar
 
 
 def _stop_lines(specs: list[StopLineSpec], lanes: list[_Lane]) -> list[StopLineRecord]:
-    import shapely
-
     out: list[StopLineRecord] = []
     veh = [ln for ln in lanes if ln.src.type in VEHICLE_TYPES and not ln.connector]
     for spec in specs:
@@ -255,7 +225,7 @@ def _stop_lines(specs: list[StopLineSpec], lanes: list[_Lane]) -> list[StopLineR
             if spec.lanes is not None and ln.src.id not in spec.lanes:
                 continue
             c = ln.center
-            h = _heading(c, True)
+            h = _end_heading(c)
             ext = np.vstack([c, c[-1] + 1.5 * np.array([math.cos(h), math.sin(h)])])
             hit = shapely.LineString(ext).intersection(line)
             if hit.is_empty:
@@ -274,8 +244,6 @@ def _stop_lines(specs: list[StopLineSpec], lanes: list[_Lane]) -> list[StopLineR
 
 
 def _drivable(lanes: list[_Lane]) -> list[np.ndarray]:
-    import shapely
-
     polys = []
     for ln in lanes:
         if ln.src.type not in VEHICLE_TYPES:

@@ -44,7 +44,13 @@ from typing import Any
 
 import numpy as np
 
+try:  # numpy >= 2 (numpy 1.x pickles name numpy.core, 2.x numpy._core: admit both)
+    from numpy._core import multiarray, numeric
+except ImportError:  # numpy 1.x
+    from numpy.core import multiarray, numeric
+
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.polyline import polyline_length
 from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
@@ -62,11 +68,6 @@ def _codecs_encode(obj: Any, encoding: str = "utf-8", errors: str = "strict") ->
 
 
 def _numpy_globals() -> dict[tuple[str, str], Any]:
-    try:  # numpy >= 2 (numpy 1.x pickles name numpy.core, 2.x numpy._core: admit both)
-        from numpy._core import multiarray, numeric
-    except ImportError:  # numpy 1.x
-        from numpy.core import multiarray, numeric
-
     out = {}
     for mod in ("numpy.core", "numpy._core"):
         out[(f"{mod}.multiarray", "_reconstruct")] = multiarray._reconstruct
@@ -193,13 +194,13 @@ def _map(features: dict, map_id: str, source: str, notes: list[str]) -> MapRecor
         typ = str(_get(feat, "type", where, None))
         if typ in LANE_KINDS:
             c = _array(_get(feat, "polyline", where, None), f"{where}.polyline", 2)[:, :2]
-            if len(c) < 2 or common.polyline_length(c) < 0.1:
+            if len(c) < 2 or polyline_length(c) < 0.1:
                 other[f"degenerate {typ}"] = other.get(f"degenerate {typ}", 0) + 1
                 continue
             width = 3.5
             if feat.get("polygon") is not None and len(feat["polygon"]) >= 3:
                 poly = _array(feat["polygon"], f"{where}.polygon", 2)[:, :2]
-                width = float(np.clip(_polygon_area(poly) / common.polyline_length(c), 2.0, 6.0))
+                width = float(np.clip(_polygon_area(poly) / polyline_length(c), 2.0, 6.0))
             succ = [int(s) for s in feat.get("exit_lanes", []) if str(s).lstrip("-").isdigit()]
             has_links |= bool(succ)
             lanes.append(LaneRecord(id=i, centerline=c, width=width, type=LANE_KINDS[typ], successors=succ,

@@ -22,6 +22,8 @@ from collections.abc import Iterable
 
 from drivee2e_jax.records import SuiteRecord
 
+from . import build
+
 #: Bump whenever the generated suite changes (caches key on it).
 VERSION = "1"
 
@@ -31,9 +33,7 @@ __all__ = ["generate", "maps", "VERSION"]
 def maps() -> dict:
     """{map_id: MapRecord} of the 15 intersections, without generating any
     traffic (seed-independent; a few seconds)."""
-    from .build import SPECS, build_layout
-
-    return {sp.map_id: build_layout(sp.map_id).map for sp in SPECS}
+    return {sp.map_id: build.build_layout(sp.map_id).map for sp in build.SPECS}
 
 
 def generate(seed: int = 0, *, scenarios: Iterable[int] | None = None, workers: int | None = None) -> SuiteRecord:
@@ -47,6 +47,4 @@ def generate(seed: int = 0, *, scenarios: Iterable[int] | None = None, workers: 
         or more cores, or ``$DRIVEE2E_TWIN15_WORKERS``); results do not
         depend on it.
     """
-    from .build import generate as _generate
-
-    return _generate(int(seed), VERSION, scenarios=scenarios, workers=workers)
+    return build.generate(int(seed), VERSION, scenarios=scenarios, workers=workers)

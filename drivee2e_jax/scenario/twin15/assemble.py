@@ -4,21 +4,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivee2e_jax.polyline import arc_length
 from drivee2e_jax.records import CATEGORIES, RouteRecord, ScenarioRecord, TrackRecord
+from drivee2e_jax.scenario.routes import TWIN15_ROUTE_SPACING_M
 
 from .labels import LOG_STEPS, Cut
 from .plan import DT, Plan
-
-ROUTE_SPACING = 1.5  # m between route waypoints
 
 
 def route_of(xy: np.ndarray) -> RouteRecord:
     """The ego's logged path decimated to 1.5-2 m (logged points kept where
     the next one would open a gap over 2 m), with its exact ends."""
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    arc = arc_length(xy)
     keep, last = [0], 0.0
     for j in range(1, len(xy) - 1):
-        if arc[j] - last >= ROUTE_SPACING or arc[j + 1] - last > 2.0:
+        if arc[j] - last >= TWIN15_ROUTE_SPACING_M or arc[j + 1] - last > 2.0:
             keep.append(j)
             last = arc[j]
     if arc[-1] - last < 0.5 and len(keep) > 1:
@@ -28,6 +28,9 @@ def route_of(xy: np.ndarray) -> RouteRecord:
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
+    """Angles to [-pi, pi). Not ``polyline.wrap_angle`` on purpose: this is the
+    generator's own arithmetic, and the twin15 suite (``VERSION``) is pinned to
+    its bits; ``pack`` wraps every yaw to (-pi, pi] (``polyline.wrap_angle``)."""
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 

@@ -120,7 +120,7 @@ def _jax_backend_live() -> bool:
     if "jax" not in sys.modules:
         return False
     try:
-        from jax._src import xla_bridge
+        from jax._src import xla_bridge  # noqa: PLC0415 - only once JAX is loaded: never import it here
 
         return bool(getattr(xla_bridge, "_backends", {}))
     except Exception:  # noqa: BLE001 - private API moved: assume live, stay safe

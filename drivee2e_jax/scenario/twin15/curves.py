@@ -1,13 +1,15 @@
 """Host-side polyline helpers for the generator (numpy, float64, metres).
 
-Only what building a map needs: unit vectors, arc length, uniform
-resampling, Bezier and arc pieces, smoothing that keeps straight ends exact,
+Only what building a map needs: unit vectors (arc length and uniform
+resampling are ``drivee2e_jax.polyline``'s), Bezier and arc pieces, smoothing that keeps straight ends exact,
 heading and curvature, and splitting long polylines for fixed-size packing.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from drivee2e_jax.polyline import arc_length, resample_polyline
 
 
 def unit(angle_rad: float) -> np.ndarray:
@@ -20,35 +22,9 @@ def rot90(v: np.ndarray) -> np.ndarray:
     return np.stack([-v[..., 1], v[..., 0]], axis=-1)
 
 
-def arc_length(pts: np.ndarray) -> np.ndarray:
-    """(n,) cumulative arc length of a polyline (n, 2), starting at 0."""
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(seg)])
-
-
-def dedupe(pts: np.ndarray, tol: float = 1e-6) -> np.ndarray:
-    """Drop consecutive points closer than ``tol`` (keeps the first and last)."""
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > tol])
-    out = pts[keep]
-    if np.linalg.norm(out[-1] - pts[-1]) > 0:
-        out[-1] = pts[-1]
-    return out
-
-
-def resample(pts: np.ndarray, step: float) -> np.ndarray:
-    """Resample a polyline at uniform arc spacing <= ``step``; keeps both ends exactly."""
-    pts = dedupe(np.asarray(pts, float))
-    s = arc_length(pts)
-    n = max(2, int(np.ceil(s[-1] / step - 1e-9)) + 1)
-    q = np.linspace(0.0, s[-1], n)
-    out = np.stack([np.interp(q, s, pts[:, 0]), np.interp(q, s, pts[:, 1])], axis=1)
-    out[0], out[-1] = pts[0], pts[-1]
-    return out
-
-
 def line(a: np.ndarray, b: np.ndarray, step: float = 0.25) -> np.ndarray:
     """Straight segment from a to b sampled at <= ``step``."""
-    return resample(np.stack([np.asarray(a, float), np.asarray(b, float)]), step)
+    return resample_polyline(np.stack([np.asarray(a, float), np.asarray(b, float)]), step)
 
 
 def bezier(p0, p1, p2, p3, n: int = 200) -> np.ndarray:
@@ -73,7 +49,7 @@ def smooth(pts: np.ndarray, sigma: float, step: float = 0.25) -> np.ndarray:
     end points and end headings exactly (a linear function is a fixed point
     of the filter). Returns points ``step`` apart.
     """
-    p = resample(pts, step)
+    p = resample_polyline(pts, step)
     k = int(np.ceil(3 * sigma / step))
     d0 = p[1] - p[0]
     d1 = p[-1] - p[-2]
@@ -85,7 +61,7 @@ def smooth(pts: np.ndarray, sigma: float, step: float = 0.25) -> np.ndarray:
     w /= w.sum()
     out = np.stack([np.convolve(ext[:, 0], w, "valid"), np.convolve(ext[:, 1], w, "valid")], axis=1)
     out[0], out[-1] = pts[0], pts[-1]
-    return resample(out, step)
+    return resample_polyline(out, step)
 
 
 def headings(pts: np.ndarray) -> np.ndarray:

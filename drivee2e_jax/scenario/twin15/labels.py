@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivee2e_jax.scenario.labels import IPC_AHEAD_M, STOP_LINE_NEAR_M, STOP_SPEED_MPS, turn_label
+
 from .boxes import find_overlaps
 from .network import TRACK, VEHICLE
 from .plan import WARMUP_STEPS, Plan
@@ -78,7 +80,7 @@ def cut(rng: np.random.Generator, tab: Tables, plan: Plan, rows: np.ndarray, res
         raise Miss("ego did not get through")
     k_cross, k_end = steps[k_cross], steps[k_end]
     ve = v_hist[:, ego].astype(float)
-    near_line = seen & (steps < k_cross) & (stop - (se + length / 2) < 3.0) & (ve < 0.1)
+    near_line = seen & (steps < k_cross) & (stop - (se + length / 2) < STOP_LINE_NEAR_M) & (ve < STOP_SPEED_MPS)
     lo = max(int(spawn_step[ego]), k_end - (LOG_STEPS - 1 - END_MARGIN), WARMUP_STEPS)
     hi = min(k_cross - 25, int(res.last_step[scen_row]) + 1 - LOG_STEPS)
     if plan.label == "STP":
@@ -152,14 +154,14 @@ def _verify(tab: Tables, plan: Plan, c: Cut, paths: np.ndarray, k_cross: int) ->
         if i0 < 0 or i1 < 0:
             raise Miss("ego turn not logged")
         turn = np.rad2deg(yaw[i1] - yaw[i0])
-        got = "UT" if turn > 150 else "LFT" if turn > 40 else "RT" if turn < -40 else "STR"
+        got = turn_label(turn, left_uturns_only=True)
         if got != label:
             raise Miss(f"ego turned {turn:.0f} deg")
         return
     if label == "STP":
         s0, v0 = c.s[0], c.v[0]
         length = float(plan.agents["length"][0])
-        near = c.valid[0] & (tab.path_stop[p] - (s0 + length / 2) < 3.0) & (v0 < 0.1)
+        near = c.valid[0] & (tab.path_stop[p] - (s0 + length / 2) < STOP_LINE_NEAR_M) & (v0 < STOP_SPEED_MPS)
         red = c.signals[g] == RED
         if not (near & red).any():
             raise Miss("ego did not stop on red")
@@ -189,7 +191,7 @@ def _verify(tab: Tables, plan: Plan, c: Cut, paths: np.ndarray, k_cross: int) ->
                 continue
             # the ego within ~25 m before the crossing (or on it), a person's
             # centre on the crossing between the kerbs
-            ego_near = c.valid[0] & (s0[0] >= tab.zones.a[z] - 25.0) & (rear <= tab.zones.b[z])
+            ego_near = c.valid[0] & (s0[0] >= tab.zones.a[z] - IPC_AHEAD_M) & (rear <= tab.zones.b[z])
             mine = paths == q
             on = c.valid[mine] & (s0[mine] > tab.path_stop[q]) & (s0[mine] < tab.path_j1[q])
             if (on & ego_near).any():

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drivee2e_jax.polyline import resample_polyline
 from drivee2e_jax.records import LaneRecord
 
-from .curves import resample
 from .legs import BIKE_WIDTH, Leg, taper_weight
 from .movements import Movement
 
@@ -51,7 +51,7 @@ class LaneSet:
         lid = len(self.records)
         # long curved lanes get coarser (still <= 2 m) so they fit the point budget
         length = float(np.linalg.norm(np.diff(dense, axis=0), axis=1).sum())
-        pts = resample(dense, min(2.0, max(step, length / (MAX_LANE_POINTS - 1.5))))
+        pts = resample_polyline(dense, min(2.0, max(step, length / (MAX_LANE_POINTS - 1.5))))
         if len(pts) > MAX_LANE_POINTS:
             raise ValueError(f"lane {lid} ({info.role}) needs {len(pts)} points > {MAX_LANE_POINTS}")
         self.records.append(LaneRecord(id=lid, centerline=pts, width=float(width), speed_limit=float(speed),
@@ -67,14 +67,14 @@ def _median_marking(leg: Leg) -> str:
 
 
 def _straight(leg: Leg, d0: float, d1: float, o: float) -> np.ndarray:
-    return resample(np.stack([leg.point(d0, o), leg.point(d1, o)]), DENSE_STEP)
+    return resample_polyline(np.stack([leg.point(d0, o), leg.point(d1, o)]), DENSE_STEP)
 
 
 def _pocket(leg: Leg, o_from: float, o_to: float) -> np.ndarray:
     d = np.arange(leg.d_split, leg.d_stop - 1e-9, -DENSE_STEP / 2)
     d = np.append(d, leg.d_stop)
     o = o_from + (o_to - o_from) * taper_weight(d - leg.d_stop)
-    return resample(leg.point(d, o), DENSE_STEP)
+    return resample_polyline(leg.point(d, o), DENSE_STEP)
 
 
 def build_lanes(legs: list[Leg], moves: list[Movement]) -> LaneSet:

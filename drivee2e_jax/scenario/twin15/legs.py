@@ -174,7 +174,7 @@ def make_legs(spec: IntersectionSpec) -> tuple[list[Leg], list[Corner]]:
     # shifted out by a lane where the straight-ahead approach has a left
     # pocket (the painted island opposite the pocket)
     lp_in = []
-    for i, s in enumerate(spec.legs):
+    for s in spec.legs:
         src = [o for o in spec.legs if o is not s and abs(((s.angle_deg - o.angle_deg) % 360.0) - 180.0) < 40.0]
         lp_in.append(any(o.left_pocket for o in src))
     legs = [make_leg(i, s, lp_in[i]) for i, s in enumerate(spec.legs)]

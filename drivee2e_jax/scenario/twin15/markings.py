@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivee2e_jax.polyline import resample_polyline
 from drivee2e_jax.records import BoundaryRecord
 
-from .curves import chunk, resample
+from .curves import chunk
 from .lanes import MAX_LANE_POINTS
 from .legs import BIKE_WIDTH, POCKET_LENGTH, TAPER_LENGTH, Corner, Leg, kerb_polyline, taper_weight
 from .legs import leg_line as _leg_line
@@ -29,7 +30,7 @@ STEP = 2.0
 
 
 def _add(out: list[BoundaryRecord], pts: np.ndarray, marking: str) -> None:
-    for piece in chunk(resample(pts, STEP), MAX_LANE_POINTS):
+    for piece in chunk(resample_polyline(pts, STEP), MAX_LANE_POINTS):
         out.append(BoundaryRecord(points=piece, marking=marking))
 
 
@@ -48,7 +49,7 @@ def build_boundaries(legs: list[Leg], corners: list[Corner]) -> list[BoundaryRec
             _add(out, _leg_line(leg, leg.d_stop, leg.d_end, 0.0), "double_solid")
         else:
             _add(out, _leg_line(leg, leg.d_stop, leg.d_end, leg.exit_offsets[0] + w / 2), "solid")
-            edge = (lambda d: m / 2 + w * (1 - taper_weight(d - leg.d_stop))) if has_lp else m / 2
+            edge = (lambda d, m=m, w=w, leg=leg: m / 2 + w * (1 - taper_weight(d - leg.d_stop))) if has_lp else m / 2
             _add(out, _leg_line(leg, leg.d_stop, leg.d_end, edge), "solid")
         # between entry lanes
         pocket_end = leg.d_stop + POCKET_LENGTH - TAPER_LENGTH / 2

@@ -16,12 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivee2e_jax.scenario.labels import TURN_MIN_DEG
+
 from .curves import arc, bezier, line_intersection, smooth
 from .legs import Corner, Leg, kerb_polyline
 
 STRAIGHT, LEFT, RIGHT, UTURN = "straight", "left", "right", "uturn"
-#: Heading change (deg) beyond which a movement is a turn.
-TURN_THRESHOLD_DEG = 40.0
 
 
 @dataclass
@@ -49,9 +49,9 @@ def classify(a: Leg, b: Leg) -> str:
     if a.index == b.index:
         return UTURN
     d = turn_angle(a, b)
-    if d > TURN_THRESHOLD_DEG:
+    if d > TURN_MIN_DEG:
         return LEFT
-    if d < -TURN_THRESHOLD_DEG:
+    if d < -TURN_MIN_DEG:
         return RIGHT
     return STRAIGHT
 
@@ -165,7 +165,7 @@ def connector_geometry(mv: Movement, legs: list[Leg], corner_radius: float, shri
         radius = min(r_fit, 250.0)
     radius = max(radius * shrink, 4.0)
     dt = radius * np.tan(half)
-    t1, t2 = q - dt * h1, q + dt * h2
+    t1 = q - dt * h1
     side = np.array([-h1[1], h1[0]]) * np.sign(turn)  # towards the turn centre
     center = t1 + radius * side
     a0 = np.arctan2(*(t1 - center)[::-1])

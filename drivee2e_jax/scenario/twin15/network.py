@@ -31,7 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .curves import arc_length, curvature, resample
+from drivee2e_jax.polyline import arc_length, resample_polyline
+
+from .curves import curvature
 from .layout import Layout
 from .legs import CROSSWALK_WIDTH
 from .movements import LEFT, RIGHT, STRAIGHT, UTURN
@@ -141,7 +143,7 @@ def crosswalk_tracks(lay: Layout, first_segment_id: int) -> list[Path]:
                     o0, o1 = o1, o0
                 ends = np.stack([leg.point(d, o0), leg.point(d, o1)])
                 total = float(np.linalg.norm(ends[1] - ends[0]))
-                xy = uniform(resample(ends, STEP))
+                xy = uniform(resample_polyline(ends, STEP))
                 kerb = SIDEWALK_REACH
                 out.append(Path(TRACK, xy, total, [first_segment_id + len(out)], [0.0], kerb, kerb, total - kerb, grp,
                                 None, RANK["vru"], leg.index, leg.index, -1, -1, crosswalk=leg.index,

@@ -429,7 +429,7 @@ class _Sim:
 
     def _commit(self, w: _View) -> np.ndarray:
         """Decide who may enter; returns ``permitted`` (no stop-point obstacle)."""
-        tab, act = self.tab, w.act
+        act = w.act
         com = self.committed[act]
         vru = self.vru[act]
         unc = ~com & (w.d > -0.5) & (w.d < LOOK)

@@ -15,7 +15,7 @@ import pyarrow.parquet as parquet  # noqa: E402
 from drivee2e_jax.errors import DriveE2EError  # noqa: E402
 from drivee2e_jax.records import SuiteRecord  # noqa: E402
 from drivee2e_jax.scenario.importers import ImportOptions, argoverse2, load  # noqa: E402
-from drivee2e_jax.scenario.schema import validate_records  # noqa: E402
+from drivee2e_jax.scenario.validate import validate_records  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "argoverse2"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data samples not found at {DATA}")

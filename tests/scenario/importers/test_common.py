@@ -14,6 +14,7 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import LaneRecord, MapRecord, ScenarioRecord, TrackRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack
+from drivee2e_jax.scenario.routes import LOG_ROUTE_SPACING_M
 from drivee2e_jax.scenario.schema import read_suite
 
 DT = 0.1
@@ -174,7 +175,7 @@ def test_build_route_keeps_exact_ends_and_spacing():
     np.testing.assert_allclose(r.destination, xy[-1])
     np.testing.assert_allclose(r.waypoints[[0, -1]], xy[[0, -1]])
     gaps = np.linalg.norm(np.diff(r.waypoints, axis=0), axis=1)
-    assert gaps[:-1].min() >= common.ROUTE_SPACING_M - 1e-9 and gaps.max() < 2 * common.ROUTE_SPACING_M
+    assert gaps[:-1].min() >= LOG_ROUTE_SPACING_M - 1e-9 and gaps.max() < 2 * LOG_ROUTE_SPACING_M
     standing = common.build_route(track(0, np.zeros((5, 2))))
     assert standing.waypoints.shape == (2, 2)
 

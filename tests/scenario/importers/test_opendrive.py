@@ -15,6 +15,7 @@ from scipy import integrate, special
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.importers import opendrive as od
 from drivee2e_jax.scenario.importers.common import ImportOptions
+from tests.helpers.importer_files import JUNCTION, XODR_HEAD, interaction_csv
 
 
 def G(kind, length, x=0.0, y=0.0, hdg=0.0, **params):
@@ -132,7 +133,7 @@ def test_spiral_is_arc_length_parametrised(k0, k1, length, hdg):
 # Lanes and junctions
 # --------------------------------------------------------------------------
 
-_HEAD = '<?xml version="1.0"?>\n<OpenDRIVE><header revMajor="1" revMinor="6"/>\n'
+_HEAD = XODR_HEAD
 
 STRAIGHT = _HEAD + """
 <road id="7" length="40" junction="-1">
@@ -152,35 +153,8 @@ STRAIGHT = _HEAD + """
 </road></OpenDRIVE>
 """
 
-JUNCTION = _HEAD + """
-<road id="1" length="50" junction="-1">
-  <link><successor elementType="junction" elementId="100"/></link>
-  <planView><geometry s="0" x="0" y="0" hdg="0" length="50"><line/></geometry></planView>
-  <lanes><laneSection s="0">
-    <left><lane id="1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></left>
-    <center><lane id="0" type="none"><roadMark sOffset="0" type="solid"/></lane></center>
-    <right><lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right>
-  </laneSection></lanes>
-</road>
-<road id="2" length="31.41592653589793" junction="100">
-  <planView><geometry s="0" x="50" y="0" hdg="0" length="31.41592653589793"><arc curvature="0.05"/></geometry></planView>
-  <lanes><laneSection s="0">
-    <center><lane id="0" type="none"/></center>
-    <right><lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right>
-  </laneSection></lanes>
-</road>
-<road id="3" length="50" junction="-1">
-  <planView><geometry s="0" x="70" y="20" hdg="1.5707963267948966" length="50"><line/></geometry></planView>
-  <lanes><laneSection s="0">
-    <left><lane id="1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></left>
-    <center><lane id="0" type="none"><roadMark sOffset="0" type="solid"/></lane></center>
-    <right><lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right>
-  </laneSection></lanes>
-</road>
-<junction id="100"><connection id="0" incomingRoad="1" connectingRoad="2" contactPoint="start">
-  <laneLink from="-1" to="-1"/></connection></junction>
-</OpenDRIVE>
-"""
+# JUNCTION (two roads joined by a connecting arc) is in tests/helpers/importer_files.py,
+# shared with the CLI import tests.
 
 
 def _write(tmp_path: Path, text: str, name: str = "m.xodr") -> Path:
@@ -257,19 +231,6 @@ def test_bad_files_give_one_line_errors(tmp_path, text, needle):
 # --------------------------------------------------------------------------
 
 
-def _interaction_csv(path: Path, lane_xy: np.ndarray, speed: float = 8.0) -> None:
-    """A car driving along ``lane_xy`` at ``speed`` (INTERACTION vehicle_tracks format)."""
-    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(lane_xy, axis=0), axis=1))]
-    rows = ["track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,psi_rad,length,width"]
-    for f, d in enumerate(np.arange(0.0, s[-1] - 1.0, speed * 0.1)):
-        x, y = np.interp(d, s, lane_xy[:, 0]), np.interp(d, s, lane_xy[:, 1])
-        x2, y2 = np.interp(d + 0.5, s, lane_xy[:, 0]), np.interp(d + 0.5, s, lane_xy[:, 1])
-        h = math.atan2(y2 - y, x2 - x)
-        rows.append(f"1,{f + 1},{f * 100},car,{x:.3f},{y:.3f},{speed * math.cos(h):.3f},{speed * math.sin(h):.3f},"
-                    f"{h:.4f},4.5,1.8")
-    path.write_text("\n".join(rows) + "\n")
-
-
 def test_load_map_alone_gives_no_scenario(tmp_path):
     res = od.load([_write(tmp_path, JUNCTION)], ImportOptions())
     assert list(res.maps) == ["m"] and res.scenarios == []
@@ -283,7 +244,7 @@ def test_load_with_interaction_tracks(tmp_path):
     path = np.vstack([lanes[49].centerline, lanes[1049].centerline[1:], lanes[2049].centerline[1:]])
     rec = tmp_path / "rec"
     rec.mkdir()
-    _interaction_csv(rec / "vehicle_tracks_000.csv", path)
+    interaction_csv(rec / "vehicle_tracks_000.csv", path)
     res = od.load([xodr, rec / "vehicle_tracks_000.csv"], ImportOptions())
     assert len(res.scenarios) == 1, res.skipped
     s = res.scenarios[0]
@@ -300,7 +261,7 @@ def test_track_path_alone_finds_the_map_next_to_it(tmp_path):
     lanes = {ln.id: ln for ln in m.lanes}
     rec = tmp_path / "rec"
     rec.mkdir()
-    _interaction_csv(rec / "vehicle_tracks_000.csv", np.vstack([lanes[49].centerline, lanes[1049].centerline[1:]]))
+    interaction_csv(rec / "vehicle_tracks_000.csv", np.vstack([lanes[49].centerline, lanes[1049].centerline[1:]]))
     res = od.load([rec], ImportOptions())  # the CLI calls load once per path
     assert len(res.scenarios) == 1 and list(res.maps) == ["m"]
     xodr.unlink()

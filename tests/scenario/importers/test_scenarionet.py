@@ -11,61 +11,15 @@ import pytest
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.importers import ImportOptions, load, scenarionet
-from drivee2e_jax.scenario.schema import validate_records
+from drivee2e_jax.scenario.validate import validate_records
+from tests.helpers.importer_files import scenario_dict, write_pkl
 
 DATA = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "nuscenes_scenarionet"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data samples not found at {DATA}")
 
 
 # ---------------------------------------------------------------- a tiny synthetic scenario
-
-
-def _state(n, xy, heading=0.0, valid=None, size=(4.5, 1.9, 1.6)):
-    return {
-        "position": np.concatenate([xy, np.zeros((n, 1))], 1),
-        "heading": np.full(n, heading),
-        "velocity": np.zeros((n, 2)),
-        "valid": np.ones(n) if valid is None else np.asarray(valid, float),
-        "length": np.full((n, 1), size[0]), "width": np.full((n, 1), size[1]), "height": np.full((n, 1), size[2]),
-    }
-
-
-def scenario_dict(n=60, dt=0.1):
-    ts = np.arange(n) * dt
-    x = np.linspace(-30, 30, n)
-    lane_x = np.linspace(-60, 60, 13)
-    return {
-        "id": "tiny", "version": "test", "length": n,
-        "metadata": {"dataset": "synthetic", "scenario_id": "tiny-1", "map": "town", "sdc_id": "ego", "ts": ts,
-                     "sample_rate": dt},
-        "tracks": {
-            "ego": {"type": "VEHICLE", "metadata": {"type": "vehicle.car"},
-                    "state": _state(n, np.stack([x, np.zeros(n)], 1), size=(1.73, 4.08, 1.56))},
-            "car1": {"type": "VEHICLE", "metadata": {"type": "vehicle.bus.rigid"},
-                     "state": _state(n, np.stack([x - 20, np.zeros(n)], 1), size=(11.0, 2.9, 3.5))},
-            "ped": {"type": "PEDESTRIAN", "metadata": {}, "state": _state(n, np.stack([np.zeros(n), np.full(n, 8.0)], 1),
-                                                                           size=(0.7, 0.7, 1.8))},
-            "cone": {"type": "TRAFFIC_CONE", "metadata": {}, "state": _state(n, np.tile([[5.0, 4.0]], (n, 1)),
-                                                                              size=(0.4, 0.4, 0.8))},
-            "ghost": {"type": "VEHICLE", "metadata": {}, "state": _state(n, np.zeros((n, 2)), valid=np.zeros(n))},
-            "ufo": {"type": "UFO", "metadata": {}, "state": _state(n, np.zeros((n, 2)))},
-        },
-        "dynamic_map_states": {},
-        "map_features": {
-            "lane_a": {"type": "LANE_SURFACE_STREET", "polyline": np.stack([lane_x, np.zeros(13), np.zeros(13)], 1),
-                       "polygon": np.array([[-60, -1.75], [60, -1.75], [60, 1.75], [-60, 1.75]])},
-            "line_1": {"type": "ROAD_LINE_SOLID_SINGLE_WHITE", "polyline": np.stack([lane_x, np.full(13, -1.75)], 1)},
-            "edge_1": {"type": "ROAD_EDGE_BOUNDARY", "polyline": [(x_, 1.75, 0.0) for x_ in lane_x]},
-            "cw": {"type": "CROSSWALK", "polygon": np.array([[40.0, -3], [44, -3], [44, 3], [40, 3]])},
-            "bump": {"type": "SPEED_BUMP", "polygon": np.zeros((4, 2))},
-        },
-    }
-
-
-def write_pkl(path: Path, obj, protocol=pickle.HIGHEST_PROTOCOL) -> Path:
-    with open(path, "wb") as f:
-        pickle.dump(obj, f, protocol=protocol)
-    return path
+# (scenario_dict / write_pkl: tests/helpers/importer_files.py)
 
 
 def test_tiny_scenario_converts(tmp_path):

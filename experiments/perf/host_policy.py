@@ -1,0 +1,173 @@
+"""What a host policy costs: the state-only closed loop with the same policy in
+JAX, as a numpy host policy through ``jax.pure_callback`` inside the compiled
+scan (``hostbridge``, what ``drivee2e bench`` uses), and as compiled simulator
+segments between host calls (a Python loop: jitted observe -> host act ->
+jitted step, one device->host->device exchange per step).
+
+Under ``jit`` a JAX policy's observation is computed only as far as the policy
+reads it (constant_velocity reads ``obs.ego``; lanes and agents are never
+projected). A host policy gets what it declares in ``observation_fields``
+(the example declares ``("ego",)``); one that declares nothing gets every
+field, which costs the simulator the full vector observation. To separate the
+two costs, ``jax_full`` is the JAX policy made to read every field (a zero
+times the sum of all leaves), and the host variants run both ways
+(``callback`` = declared fields, ``callback_full`` / ``segments_full`` = every field).
+
+    python experiments/perf/host_policy.py [--batch 200] [--steps 200] [--rounds 2] [--json]
+
+The policy is constant_velocity (``policies/constant_velocity.py``) and its
+numpy twin (``docs/examples/numpy_constant_velocity.py``): the same
+waypoints, so the three variants simulate the same episodes. Each variant is
+compiled and warmed up first, then timed over ``--steps`` steps; the variants
+are interleaved ``--rounds`` times and the best round of each is reported
+(shared machine), with the overhead of each host variant relative to the JAX
+one from the same round set. Never a unit test (issue: <= 25 % at B = 200).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))  # `python experiments/perf/host_policy.py` from a checkout
+
+from drivee2e_jax import hostapi, hostbridge  # noqa: E402
+from drivee2e_jax.policy import load_policy  # noqa: E402
+from drivee2e_jax.rollout import Rollout  # noqa: E402
+from drivee2e_jax.scenario import load_suite  # noqa: E402
+from drivee2e_jax.sim import SimConfig, Simulator  # noqa: E402
+from drivee2e_jax.types import Waypoints  # noqa: E402
+
+
+class ReadsEverything:
+    """A JAX policy: constant_velocity's waypoints plus 0 x every observation leaf."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.name, self.action_type, self.waypoint_dt = inner.name, inner.action_type, inner.waypoint_dt
+        self.init, self.initial_state = inner.init, inner.initial_state
+
+    def act(self, params, obs, state, key):
+        action, state = self.inner.act(params, obs, state, key)
+        total = sum(jnp.sum(jnp.asarray(x, jnp.float32)) for x in jax.tree_util.tree_leaves(obs))
+        return Waypoints(xy=action.xy + 0.0 * total), state
+
+
+class AllFields(hostapi.HostPolicy):
+    """The numpy example with ``observation_fields = None``: it receives every field."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.name, self.action_type = inner.name, inner.action_type
+        self.waypoint_dt, self.num_waypoints = inner.waypoint_dt, inner.num_waypoints
+
+    def act(self, obs, state):
+        return self.inner.act(obs, state)
+
+
+def _batch(n: int):
+    packed = load_suite("twin15").pack("val")
+    rows = np.arange(n) % len(packed)
+    packed = packed.select(rows)
+    return jax.tree_util.tree_map(jnp.asarray, packed.scenario), packed.meta.rows()
+
+
+def scanned(policy, batch, meta, steps: int, chunk: int = 50) -> float:
+    """Seconds for ``steps`` steps of the compiled rollout (JAX or bridged host policy)."""
+    sim = Simulator(SimConfig())
+    ro = Rollout(sim, policy, None, chunk=chunk)
+    keys = jax.random.split(jax.random.PRNGKey(0), int(batch.ego_index.shape[0]))
+    hostbridge.begin(policy, meta)
+    carry = ro.init(batch, keys)
+    carry, _ = ro.advance(batch, carry)  # compile + warm up
+    jax.block_until_ready(carry)
+    hostbridge.begin(policy, meta)
+    carry = ro.init(batch, keys)
+    t0 = time.perf_counter()
+    for _ in range(steps // chunk):
+        carry, log = ro.advance(batch, carry)
+    jax.block_until_ready((carry, log))
+    hostbridge.raise_if_failed(policy)
+    return time.perf_counter() - t0
+
+
+def segments(host: hostapi.HostPolicy, batch, meta, steps: int) -> float:
+    """Seconds for ``steps`` steps as jitted segments with a Python host call between them."""
+    sim = Simulator(SimConfig())
+    b = int(batch.ego_index.shape[0])
+    keys = jax.random.split(jax.random.PRNGKey(0), b)
+    reset = jax.jit(jax.vmap(lambda k, s: sim.reset(k, s)[0]))
+    observe = jax.jit(jax.vmap(lambda s, st: sim.observe(s, st)))
+    step = jax.jit(jax.vmap(lambda s, st, a: sim.step(s, st, a, observe=False)[0]))
+
+    def run(n: int):
+        state = reset(keys, batch)
+        pstate = host.reset(meta)
+        for _ in range(n):
+            obs = jax.device_get(observe(batch, state))  # device -> host
+            action, pstate = host.act(hostapi.from_fields(obs), pstate)
+            state = step(batch, state, Waypoints(xy=jnp.asarray(action.xy)))  # host -> device
+        return jax.block_until_ready(state)
+
+    run(2)  # compile + warm up
+    t0 = time.perf_counter()
+    run(steps)
+    return time.perf_counter() - t0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batch", type=int, default=200)
+    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    steps = max(50, args.steps // 50 * 50)
+    batch, meta = _batch(args.batch)
+    jax_pol = load_policy(ROOT / "policies" / "constant_velocity.py")
+    host = load_policy(ROOT / "docs" / "examples" / "numpy_constant_velocity.py")
+    host_full = AllFields(host)
+    variants = {
+        "jax": lambda: scanned(jax_pol, batch, meta, steps),
+        "jax_full": lambda: scanned(ReadsEverything(jax_pol), batch, meta, steps),
+        "callback": lambda: scanned(hostbridge.wrap(host), batch, meta, steps),
+        "callback_full": lambda: scanned(hostbridge.wrap(host_full), batch, meta, steps),
+        "segments_full": lambda: segments(host_full, batch, meta, steps),
+    }
+    best = dict.fromkeys(variants, np.inf)
+    load = [os.getloadavg()[0]]
+    for _ in range(args.rounds):
+        for name, run in variants.items():
+            best[name] = min(best[name], run())
+        load.append(os.getloadavg()[0])
+    out = {
+        "batch": args.batch, "steps": steps, "rounds": args.rounds, "device": str(jax.devices()[0]),
+        **{f"{k}_s": round(v, 3) for k, v in best.items()},
+        **{f"{k}_scenario_steps_per_s": round(args.batch * steps / v) for k, v in best.items()},
+        # the host round trip, each against the JAX policy computing the same observation:
+        "callback_vs_jax_pct": round(100 * (best["callback"] / best["jax"] - 1), 1),
+        "callback_full_vs_jax_full_pct": round(100 * (best["callback_full"] / best["jax_full"] - 1), 1),
+        "segments_full_vs_jax_full_pct": round(100 * (best["segments_full"] / best["jax_full"] - 1), 1),
+        # what the full observation costs the simulator:
+        "jax_full_vs_jax_pct": round(100 * (best["jax_full"] / best["jax"] - 1), 1),
+        "load_1min": [round(x, 2) for x in load],
+    }
+    if args.json:
+        print(json.dumps(out))
+    else:
+        for k, v in out.items():
+            print(f"{k:>32}: {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

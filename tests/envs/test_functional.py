@@ -1,0 +1,166 @@
+"""The functional JAX environment (drivee2e_jax.envs.functional) on the tiny example suite.
+
+One compiled program serves the module: 4 environments under ``jit`` /
+``vmap`` / ``lax.scan`` with ``AutoResetWrapper`` for 1,000 steps; envs 0-1
+drive a uniformly random policy, envs 2-3 the reference ``log_replay`` policy
+file (its actions from ``obs.privileged.log_controls``). The log-replay
+episodes must score exactly what the benchmark's own evaluation gives.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from drivee2e_jax.envs.functional import AutoResetWrapper, DriveEnv, RewardConfig, as_action, make_params
+from drivee2e_jax.eval.closedloop import evaluate
+from drivee2e_jax.metrics.driving_score import STATUS_NAMES
+from drivee2e_jax.policy import load_policy, resolve_policy_path
+from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.types import Controls, Waypoints
+
+TINY = Path(__file__).resolve().parents[2] / "scenarios" / "examples" / "tiny"
+STEPS = 1000
+NUM_ENVS = 4
+LOG_REPLAY = np.array([False, False, True, True])
+
+
+@pytest.fixture(scope="module")
+def params():
+    return make_params(TINY, "train")
+
+
+@pytest.fixture(scope="module")
+def log_replay():
+    return load_policy(resolve_policy_path("log_replay"))
+
+
+@pytest.fixture(scope="module")
+def rollout(params, log_replay):
+    """(final state, per-step outputs (T, B, ...) as numpy) of the module's run."""
+    env = AutoResetWrapper(DriveEnv())
+    use_log = jnp.asarray(LOG_REPLAY)
+
+    def run(key, params):
+        k_reset, k_run = jax.random.split(key)
+        first = jnp.arange(NUM_ENVS, dtype=jnp.int32) % params.num_scenarios
+        obs, state = jax.vmap(env.reset, in_axes=(0, None, 0))(jax.random.split(k_reset, NUM_ENVS), params, first)
+
+        def body(carry, key):
+            obs, state = carry
+            k_act, k_step = jax.random.split(key)
+            lo, hi = jnp.array([0.0, 0.0, -1.0]), jnp.array([1.0, 1.0, 1.0])
+            random = jax.random.uniform(k_act, (NUM_ENVS, 3), minval=lo, maxval=hi)
+            logged, _ = jax.vmap(lambda o: log_replay.act(None, o, None, k_act))(obs)
+            logged = jnp.stack([logged.throttle, logged.brake, logged.steer], axis=-1)
+            action = jnp.where(use_log[:, None], logged, random)
+            obs, state, reward, done, info = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
+                jax.random.split(k_step, NUM_ENVS), state, action, params)
+            floats = [x for x in jax.tree_util.tree_leaves((obs, info["final_obs"]))
+                      if jnp.issubdtype(x.dtype, jnp.floating)]
+            finite = jnp.stack([jnp.all(jnp.isfinite(x), axis=tuple(range(1, x.ndim))) for x in floats]).all(0)
+            out = {"reward": reward, "done": done, "finite": finite, "index": state.index,
+                   **{k: info[k] for k in ("terminated", "truncated", "discount", "progress_m", "route_completion")},
+                   **{f"episode_{k}": v for k, v in info["episode"].items()}}
+            return (obs, state), out
+
+        (_, state), out = jax.lax.scan(body, (obs, state), jax.random.split(k_run, STEPS))
+        return state, out
+
+    state, out = jax.jit(run)(jax.random.PRNGKey(0), params)
+    return jax.tree_util.tree_map(np.asarray, state), jax.tree_util.tree_map(np.asarray, out)
+
+
+def test_random_policy_runs_1000_steps_with_auto_reset(rollout, params):
+    state, out = rollout
+    assert out["reward"].shape == (STEPS, NUM_ENVS)
+    assert out["finite"].all(), "every observation (and final observation) is finite"
+    assert np.isfinite(out["reward"]).all()
+    done = out["done"]
+    # Tiny logs are 5 s (49 steps): about 20 episodes per environment.
+    assert (done.sum(0) >= 15).all(), done.sum(0)
+    np.testing.assert_array_equal(state.episode, done.sum(0))
+    np.testing.assert_array_equal(state.total_steps, STEPS)
+    # termination and truncation are exclusive and make up `done`
+    np.testing.assert_array_equal(out["terminated"] | out["truncated"], done)
+    assert not (out["terminated"] & out["truncated"]).any()
+    np.testing.assert_array_equal(out["discount"], 1.0 - out["terminated"])
+    # scores only where an episode ended
+    assert np.isfinite(out["episode_driving_score"][done]).all()
+    assert np.isnan(out["episode_driving_score"][~done]).all()
+    assert (out["episode_status"][~done] == -1).all()
+    assert ((out["episode_driving_score"][done] >= 0) & (out["episode_driving_score"][done] <= 100)).all()
+    # episodes of both scenarios are drawn
+    assert set(out["episode_scenario_index"][done].tolist()) == {0, 1}
+    # episode lengths add up to the steps of finished episodes; return = sum of rewards
+    for b in range(NUM_ENVS):
+        ends = np.flatnonzero(done[:, b])
+        assert out["episode_length"][ends, b].sum() == ends[-1] + 1
+        np.testing.assert_allclose(out["episode_return"][ends[0], b], out["reward"][: ends[0] + 1, b].sum(), rtol=1e-5,
+                                   atol=1e-3)
+
+
+def test_log_replay_episodes_score_as_the_benchmark_evaluation(rollout, log_replay):
+    _, out = rollout
+    res = evaluate(log_replay, load_suite(TINY), "train")
+    oracle = {i: row for i, row in enumerate(res.rows)}
+    done = out["done"]
+    checked = set()
+    for b in np.flatnonzero(LOG_REPLAY):
+        for t in np.flatnonzero(done[:, b]):
+            i = int(out["episode_scenario_index"][t, b])
+            row = oracle[i]
+            assert out["episode_route_completion"][t, b] == pytest.approx(row["route_completion"], abs=1e-3)
+            assert out["episode_driving_score"][t, b] == pytest.approx(row["driving_score"], abs=1e-3)
+            assert STATUS_NAMES[int(out["episode_status"][t, b])] == row["status"]
+            checked.add(i)
+    assert checked == set(oracle), "log replay ran on every scenario of the split"
+
+
+def test_reward_is_route_progress_minus_penalties(rollout, params):
+    """Reward = metres of route progress - penalties (which only ever subtract);
+    over a log-replay episode the progress adds up to RC% of the route length
+    (to the 1 m route spacing) and the penalties to the LB 2.0 share of it."""
+    _, out = rollout
+    assert (out["progress_m"] - out["reward"] >= -1e-4).all()
+    assert (out["progress_m"] >= 0).all()
+    length = np.asarray(params.scenarios.route.length).astype(float)
+    done = out["done"]
+    for b in np.flatnonzero(LOG_REPLAY):
+        ends = np.flatnonzero(done[:, b])
+        for start, end in zip(np.r_[0, ends[:-1] + 1], ends):
+            i = int(out["episode_scenario_index"][end, b])
+            progress = out["progress_m"][start:end + 1, b].sum()
+            rc = out["episode_route_completion"][end, b]
+            assert progress == pytest.approx(rc / 100 * length[i], abs=1.5)
+            # penalty units x route length; IS = product of (1 - units) per event
+            penalty = progress - out["episode_return"][end, b]
+            infraction = out["episode_infraction_score"][end, b]
+            assert penalty == pytest.approx((1 - infraction) * length[i], abs=1.5 + 1e-3 * float(length[i]))
+    assert RewardConfig().collision_vehicle == pytest.approx(0.4)
+    assert RewardConfig().collision_pedestrian == pytest.approx(0.5)
+
+
+def test_as_action():
+    assert isinstance(as_action(Controls(jnp.float32(0), jnp.float32(1), jnp.float32(0))), Controls)
+    c = as_action(jnp.array([0.25, 0.0, -0.5]))
+    assert isinstance(c, Controls) and float(c.steer) == -0.5
+    assert isinstance(as_action(jnp.zeros((4, 2))), Waypoints)
+    with pytest.raises(ValueError, match="action"):
+        as_action(jnp.zeros(5))
+
+
+def test_cached_contexts_reset_equals_a_fresh_reset(params):
+    """make_params caches each scenario's per-episode constants; a reset that
+    uses them gives exactly the observation and state of one that derives them."""
+    assert params.contexts is not None and params.contexts_config == params.config
+    reset = jax.jit(DriveEnv().reset)
+    key = jax.random.PRNGKey(3)
+    cached = reset(key, params, 1)
+    fresh = reset(key, params.replace(contexts=None), 1)
+    for a, b in zip(jax.tree_util.tree_leaves(cached), jax.tree_util.tree_leaves(fresh), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

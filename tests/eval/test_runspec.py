@@ -1,0 +1,172 @@
+"""eval.runspec: run.json <-> RunSpec round trip, older files, the builders."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.eval.bench import BenchConfig
+from drivee2e_jax.eval.results import RunDir
+from drivee2e_jax.eval.runspec import RunSpec
+from drivee2e_jax.eval.tasks import TASKS
+from drivee2e_jax.eval.variants import VARIANTS
+from drivee2e_jax.metrics.driving_score import SCORE_PRESETS
+from drivee2e_jax.records import SuiteRecord
+from drivee2e_jax.rollout import ControlTiming
+from drivee2e_jax.scenario.schema import write_suite
+from tests.helpers import sim_scenarios as ss
+
+#: run.json as ``drivee2e bench`` wrote it before RunSpec (default flags, 3 scenarios).
+OLD_RUN_JSON = {
+    "suite": "twin15", "suite_version": "1.3", "split": "val", "num_scenarios": 3, "preset": "paper", "dt": 0.1,
+    "control_every": 1, "latency": 0, "seed": 0, "open_loop": False, "task": "route_navigation", "repetitions": 1,
+}
+BASE_KEYS = list(OLD_RUN_JSON)
+
+finite = st.floats(0.001, 10.0, allow_nan=False, allow_infinity=False)
+specs = st.builds(
+    RunSpec,
+    suite=st.sampled_from(["twin15", "suites/road3", "x"]),
+    split=st.sampled_from(["val", "train", "test"]),
+    preset=st.sampled_from(SCORE_PRESETS),
+    dt=finite,
+    control_every=st.integers(1, 5),
+    latency=st.integers(0, 4),
+    seed=st.integers(0, 2**31 - 1),
+    open_loop=st.booleans(),
+    task=st.sampled_from(list(TASKS)),
+    repetitions=st.integers(1, 5),
+    gps_noise_std=st.sampled_from([0.0, 0.5, 2.0]),
+    compass_noise_std=st.sampled_from([0.0, 0.01]),
+    variant=st.sampled_from(VARIANTS),
+    suite_version=st.sampled_from(["1", "1.3", "?"]),
+    num_scenarios=st.integers(1, 500),
+).map(lambda s: dataclasses.replace(
+    s, limit=s.num_scenarios,
+    variant_removed=None if s.variant == "complete" else (("vehicle", (3, 10)), ("pedestrian", (0, 2))),
+))
+
+
+@settings(deadline=None, max_examples=60)
+@given(spec=specs)
+def test_run_json_round_trips(spec):
+    d = spec.to_json()
+    text = json.loads(json.dumps(d))  # what RunDir compares with
+    assert text == d
+    back = RunSpec.from_json(text)
+    assert back == spec
+    assert back.to_json() == d and list(back.to_json()) == list(d)
+    optional = [k for k in d if k not in BASE_KEYS]
+    assert list(d)[: len(BASE_KEYS)] == BASE_KEYS
+    want = []
+    if spec.gps_noise_std or spec.compass_noise_std:
+        want += ["gps_noise_std", "compass_noise_std"]
+    if spec.variant != "complete":
+        want += ["variant", "variant_removed"]
+    assert optional == want
+
+
+def test_old_run_json_loads_and_writes_back_unchanged():
+    spec = RunSpec.from_json(OLD_RUN_JSON)
+    assert spec.to_json() == OLD_RUN_JSON
+    assert (spec.dt, spec.num_scenarios, spec.limit, spec.variant) == (0.1, 3, 3, "complete")
+    with_extras = {**OLD_RUN_JSON, "gps_noise_std": 1.5, "compass_noise_std": 0.0, "variant": "visible_all",
+                   "variant_removed": {"vehicle": [2, 7], "pedestrian": [0, 1]}}
+    assert RunSpec.from_json(with_extras).to_json() == with_extras
+
+
+def test_older_run_json_without_the_later_keys_loads_with_defaults():
+    oldest = {"suite": "twin15", "split": "val", "dt": 0.2, "num_scenarios": 5, "seed": 3}
+    spec = RunSpec.from_json(oldest)
+    assert (spec.task, spec.repetitions, spec.preset, spec.open_loop) == ("route_navigation", 1, "paper", False)
+    assert spec.timing() == ControlTiming(1, 0)
+    cfg = spec.sim_config()
+    assert cfg.dt == 0.2 and cfg.score.name == "paper" and cfg.obs.gps_noise_std == 0.0
+    assert RunSpec.from_json({k: v for k, v in oldest.items() if k != "num_scenarios"}).limit is None
+    assert RunSpec.from_json({**OLD_RUN_JSON, "written_by_a_later_version": 1}).to_json() == OLD_RUN_JSON
+
+
+@pytest.mark.parametrize("bad, match", [
+    ({"split": "val", "dt": 0.1}, "no suite"),
+    ({**OLD_RUN_JSON, "task": "flying"}, "unknown task"),
+    ({**OLD_RUN_JSON, "variant": "invisible"}, "unknown variant"),
+    ({**OLD_RUN_JSON, "dt": "fast"}, "bad value"),
+    ([1, 2], "JSON object"),
+])
+def test_bad_run_json_is_a_one_line_error(bad, match):
+    with pytest.raises(DriveE2EError, match=match):
+        RunSpec.from_json(bad)
+
+
+def test_load_names_the_file(tmp_path):
+    with pytest.raises(DriveE2EError, match="run.json: unreadable"):
+        RunSpec.load(tmp_path)
+    (tmp_path / "run.json").write_text(json.dumps({**OLD_RUN_JSON, "repetitions": 0}))
+    with pytest.raises(DriveE2EError, match=r"run.json: --repetitions must be >= 1"):
+        RunSpec.load(tmp_path)
+    (tmp_path / "run.json").write_text(json.dumps(OLD_RUN_JSON))
+    assert RunSpec.load(tmp_path).to_json() == OLD_RUN_JSON
+
+
+def test_checks_and_builders_raise_one_line_errors():
+    with pytest.raises(DriveE2EError, match="--limit must be >= 1"):
+        RunSpec(limit=0)
+    with pytest.raises(DriveE2EError, match="--repetitions"):
+        RunSpec(repetitions=0)
+    with pytest.raises(DriveE2EError, match="dt"):
+        RunSpec(dt=0.0).sim_config()
+    with pytest.raises(DriveE2EError):
+        RunSpec(control_every=0).timing()
+    with pytest.raises(ValueError, match="resolve"):
+        RunSpec().to_json()
+    assert RunSpec(seed=4).repetition_seeds() is None
+    assert RunSpec(seed=4, repetitions=3).repetition_seeds() == [4, 5, 6]
+    cfg = RunSpec(gps_noise_std=0.5, compass_noise_std=0.02, preset="lb21", dt=0.05).sim_config()
+    assert (cfg.obs.gps_noise_std, cfg.obs.compass_noise_std, cfg.score.name, cfg.dt) == (0.5, 0.02, "lb21", 0.05)
+
+
+@pytest.fixture(scope="module")
+def suite_dir(tmp_path_factory):
+    maps = {m.map_id: m for m in (ss.road_map(), ss.road_map(obstacle=True))}
+    scns = [ss.clean(), ss.blocked_by_car(), ss.red_light()]
+    return write_suite(SuiteRecord("road3", "1", maps, scns), tmp_path_factory.mktemp("suites") / "road3")
+
+
+def test_batch_and_resolve_on_a_suite(suite_dir):
+    spec = RunSpec(suite=str(suite_dir), split="val", limit=2)
+    suite = spec.load_suite()
+    rb = spec.batch(suite)
+    assert rb.variant is None and rb.num_scenarios == 2 and len(rb.packed) == 3
+    assert list(rb.limited().meta.scenario_id) == list(rb.packed.meta.scenario_id[:2])
+    done = spec.resolve(suite, rb)
+    assert (done.suite_version, done.num_scenarios, done.variant_removed) == ("1", 2, None)
+    again = RunSpec.from_json(done.to_json())
+    rb2 = again.batch(again.load_suite())
+    assert list(rb2.limited().meta.scenario_id) == list(rb.limited().meta.scenario_id)
+    assert np.array_equal(np.asarray(rb2.limited().scenario.tracks.xy), np.asarray(rb.limited().scenario.tracks.xy))
+    assert spec.default_out().name == "road3-val"
+    assert RunSpec(task="lane_following", variant="visible_all").default_out().as_posix() == "results/twin15-val-lane_following-visible_all"
+
+
+def test_a_run_json_written_before_runspec_resumes(suite_dir, tmp_path):
+    """RunDir compares the stored dict with the new run's: the spec of the same
+    flags must write exactly what bench wrote before."""
+    old = {"suite": str(suite_dir), "suite_version": "1", "split": "val", "num_scenarios": 3, "preset": "paper",
+           "dt": 0.1, "control_every": 1, "latency": 0, "seed": 0, "open_loop": False, "task": "route_navigation",
+           "repetitions": 1}
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "run.json").write_text(json.dumps(old, indent=2))
+    spec = BenchConfig(suite=str(suite_dir), split="val").run_spec()
+    suite = spec.load_suite()
+    spec = spec.resolve(suite, spec.batch(suite))
+    assert spec.to_json() == old
+    RunDir(out, spec.to_json())  # no "different run" error
+    with pytest.raises(DriveE2EError, match="differs in seed"):
+        RunDir(out, dataclasses.replace(spec, seed=1).to_json())

@@ -1,0 +1,326 @@
+"""testing: the policy conformance check passes every reference policy and
+catches each way of breaking the contract with one line naming the file."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.policy import reference_policy_dir
+from drivee2e_jax.testing import TINY_SUITE, Problem, check_policy, check_policy_file
+
+#: Small and shared: every check below reuses one set of observations.
+SMALL = {"batch": 2, "steps": 2}
+REPO = reference_policy_dir().parent
+
+JAX_HEADER = """\
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drivee2e_jax.policy import StatelessPolicy
+from drivee2e_jax.types import Controls, Waypoints
+
+
+def z(dtype=jnp.float32):
+    return jnp.zeros((), dtype)
+
+
+class Base(StatelessPolicy):
+    name = "bad"
+    action_type = "controls"
+"""
+
+HOST_HEADER = """\
+import numpy as np
+
+from drivee2e_jax.hostapi import Controls, HostPolicy, Waypoints
+
+
+class Base(HostPolicy):
+    name = "bad_host"
+    action_type = "controls"
+
+    def reset(self, meta):
+        return {"n": len(meta)}
+
+    def brake(self, b):
+        z = np.zeros(b, np.float32)
+        return Controls(throttle=z, brake=np.ones(b, np.float32), steer=z)
+"""
+
+
+def _write(tmp_path, header: str, body: str, name: str = "bad_policy.py"):
+    path = tmp_path / name
+    path.write_text(header + "\n\n" + textwrap.dedent(body) + "\npolicy = P()\n")
+    return path
+
+
+def _assert_one_line_naming(report, path) -> None:
+    assert report, "expected problems"
+    for p in report:
+        assert isinstance(p, Problem)
+        assert "\n" not in p.message and p.message.startswith(f"{path}: "), p.message
+
+
+# --------------------------------------------------------------------------
+# Conformant policies
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["log_replay", "expert", "stop", "constant_velocity"])
+def test_reference_policies_conform(name):
+    report = check_policy_file(REPO / "policies" / f"{name}.py", **SMALL)
+    assert report.ok, [str(p) for p in report]
+    assert report.summary.startswith(f"{name}: JAX policy, ")
+    assert ("Waypoints xy (6, 2) float32" if name == "constant_velocity" else "Controls") in report.summary
+
+
+def test_model_policy_with_random_init_conforms():
+    from drivee2e_jax.models.base import policy_from_checkpoint
+
+    report = check_policy(policy_from_checkpoint("ad_mlp", None, "traj"), source="policies/ad_mlp.py", **SMALL)
+    assert report.ok, [str(p) for p in report]
+    assert "Waypoints xy (6, 2) float32" in report.summary and "state: 7 leaves" in report.summary
+
+
+def test_host_example_conforms():
+    report = check_policy_file(REPO / "docs" / "examples" / "numpy_constant_velocity.py", **SMALL)
+    assert report.ok, [str(p) for p in report]
+    assert report.summary.startswith("np_constant_velocity: host policy, Waypoints xy (B, 6, 2) float32")
+
+
+def test_suite_by_path_and_spec_arguments(tmp_path):
+    path = _write(tmp_path, JAX_HEADER, """\
+        class P(Base):
+            def __init__(self, throttle=0.0):
+                self.throttle = float(throttle)
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z() + self.throttle, brake=z(), steer=z()), state
+
+        def make_policy(throttle=0.0):
+            return P(throttle)
+    """)
+    report = check_policy_file(f"{path}:throttle=0.5,name=half", suite=TINY_SUITE, **SMALL)
+    assert report.ok and report.summary.startswith("half: JAX policy"), list(report)
+
+
+def test_unloadable_files_raise_one_line(tmp_path):
+    with pytest.raises(DriveE2EError, match="policy file not found"):
+        check_policy_file(tmp_path / "missing.py")
+    broken = tmp_path / "broken.py"
+    broken.write_text("import no_such_module_xyz\n")
+    with pytest.raises(DriveE2EError, match="importing the policy failed"):
+        check_policy_file(broken)
+
+
+# --------------------------------------------------------------------------
+# Broken JAX policies: each caught, one line naming the file
+# --------------------------------------------------------------------------
+
+JAX_CASES = {
+    "wrong_action_type": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Waypoints(xy=jnp.zeros((4, 2), jnp.float32)), state
+     """, "action", "act returned a Waypoints action (step 0, scenario"),
+    "wrong_shape": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=jnp.zeros((1,), jnp.float32), brake=z(), steer=z()), state
+     """, "action", "action Controls.throttle has shape (1,)"),
+    "waypoints_wrong_shape": ("""\
+        class P(Base):
+            action_type = "waypoints"
+            num_waypoints = 4
+
+            def act(self, params, obs, state, key):
+                return Waypoints(xy=jnp.zeros((3, 2), jnp.float32)), state
+     """, "action", "has 3 waypoints (shape (3, 2), step 0"),
+    "float64": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=np.zeros((), np.float64), brake=z(), steer=z()), state
+     """, "action", "action Controls.throttle has dtype float64"),
+    "int": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(jnp.int32), steer=z()), state
+     """, "action", "action Controls.brake has dtype int32"),
+    "dict_action": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return {"throttle": z(), "brake": z(), "steer": z()}, state
+     """, "action", "act returned a dict with keys [throttle, brake, steer] as the action"),
+    "not_a_pair": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z())
+     """, "act", "expected a pair (action, policy_state)"),
+    "nan": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z() * jnp.nan, brake=z(), steer=z()), state
+     """, "finite", "act returned a non-finite action: Controls.throttle holds nan"),
+    "numpy_random": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z() + np.random.rand(), brake=z(), steer=z()), state
+     """, "determinism", "act is not deterministic"),
+    "time": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                time.sleep(0.002)  # two calls >= 2000 us apart: different microsecond readings
+                clock = (time.perf_counter_ns() // 1000) % 1_000_000 / 1e6
+                return Controls(throttle=z(), brake=z(), steer=z() + clock), state
+     """, "determinism", "draw randomness from `key`"),
+    "python_if": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                if obs.ego[0] > -1.0:
+                    return Controls(throttle=z(), brake=z(), steer=z()), state
+                return Controls(throttle=z(), brake=z() + 1, steer=z()), state
+     """, "jit", "act fails under jax.jit: Python control flow or conversion on a traced value; use jnp.where / lax.cond"),
+    "state_forgotten": ("""\
+        class P(Base):
+            def initial_state(self, obs):
+                return {"count": jnp.zeros((), jnp.int32)}
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z()), None
+     """, "state", "act changed the policy state's structure (step 0, scenario"),
+    "state_reshaped": ("""\
+        class P(Base):
+            def initial_state(self, obs):
+                return {"history": jnp.zeros((3, 2), jnp.float32)}
+
+            def act(self, params, obs, state, key):
+                h = jnp.concatenate([state["history"], obs.gps[None]])
+                return Controls(throttle=z(), brake=z(), steer=z()), {"history": h}
+     """, "state", "act changed the policy state at ['history'] (step 0, scenario"),
+    "act_raises": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                raise RuntimeError("boom")
+     """, "act", "act(params, obs, state, key) raised RuntimeError: boom (step 0, scenario"),
+    "bad_attributes": ("""\
+        class P(Base):
+            name = ""
+            action_type = "steering"
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z()), state
+     """, "attributes", "action_type is 'steering', expected 'controls' or 'waypoints'"),
+    "bad_waypoint_dt": ("""\
+        class P(Base):
+            action_type = "waypoints"
+            waypoint_dt = 0
+
+            def act(self, params, obs, state, key):
+                return Waypoints(xy=jnp.zeros((4, 2), jnp.float32)), state
+     """, "attributes", "waypoint_dt is 0, expected a positive number of seconds"),
+    "unknown_sensor": ("""\
+        class P(Base):
+            required_sensors = ("sonar",)
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z()), state
+     """, "attributes", "required_sensors names the unknown sensor 'sonar'"),
+}
+
+
+@pytest.mark.parametrize("case", list(JAX_CASES))
+def test_broken_jax_policy_is_caught(tmp_path, case):
+    body, check, text = JAX_CASES[case]
+    path = _write(tmp_path, JAX_HEADER, body)
+    report = check_policy_file(path, **SMALL)
+    _assert_one_line_naming(report, path)
+    hits = [p for p in report if p.check == check and text in p.message]
+    assert hits, [str(p) for p in report]
+
+
+def test_randomness_from_the_key_is_fine(tmp_path):
+    """Sampling with `key` is deterministic for a fixed key, and under vmap
+    each scenario gets its own key."""
+    path = _write(tmp_path, JAX_HEADER, """\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=jax.random.uniform(key), brake=z(), steer=z()), state
+    """)
+    report = check_policy_file(path, **SMALL)
+    assert report.ok, [str(p) for p in report]
+
+
+# --------------------------------------------------------------------------
+# Broken host policies
+# --------------------------------------------------------------------------
+
+HOST_CASES = {
+    "wrong_batch_size": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                return self.brake(obs.batch_size + 1), state
+     """, "action", "has batch size 3 (shape (3,)), expected 2"),
+    "wrong_type": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                return Waypoints(xy=np.zeros((obs.batch_size, 4, 2), np.float32)), state
+     """, "action", "a Waypoints action, but the policy's action_type is 'controls'"),
+    "dict_action": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                b = obs.batch_size
+                return {"throttle": np.zeros(b), "brake": np.zeros(b), "steer": np.zeros(b)}, state
+     """, "action", "the action is a dict with keys [throttle, brake, steer]"),
+    "reset_raises": ("""\
+        class P(Base):
+            def reset(self, meta):
+                raise KeyError("weights")
+
+            def act(self, obs, state):
+                return self.brake(obs.batch_size), state
+     """, "reset", "reset(meta) raised KeyError: 'weights'"),
+    "act_raises": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                raise ValueError("no GPU")
+     """, "act", "act(obs, state) raised ValueError: no GPU (step 0"),
+    "no_state": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                return self.brake(obs.batch_size)
+     """, "action", "expected a pair (action, state)"),
+    "state_forgotten": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                return self.brake(obs.batch_size), None
+     """, "state", "act returned the state None (step 0)"),
+    "nan": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                a = self.brake(obs.batch_size)
+                a.brake[1] = np.nan
+                return a, state
+     """, "finite", "Controls.brake holds nan (step 0, scenario"),
+    "nondeterministic": ("""\
+        class P(Base):
+            def act(self, obs, state):
+                a = self.brake(obs.batch_size)
+                return Controls(throttle=np.random.rand(obs.batch_size), brake=a.brake, steer=a.steer), state
+     """, "determinism", "two fresh reset(meta) + act(obs) on the same observation give different actions"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOST_CASES))
+def test_broken_host_policy_is_caught(tmp_path, case):
+    body, check, text = HOST_CASES[case]
+    path = _write(tmp_path, HOST_HEADER, body)
+    report = check_policy_file(path, **SMALL)
+    _assert_one_line_naming(report, path)
+    hits = [p for p in report if p.check == check and text in p.message]
+    assert hits, [str(p) for p in report]
