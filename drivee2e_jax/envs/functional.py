@@ -345,7 +345,7 @@ class DriveEnv:
             "truncated": truncated,
             "discount": 1.0 - terminated.astype(jnp.float32),
             # the finished episode's leaderboard scores (NaN / -1 until done)
-            "episode": _episode_info(result, new, done & active),
+            "scores": _episode_info(result, new, done & active),
         }
         return obs, new, reward, done, info
 

@@ -181,8 +181,8 @@ class DriveE2EVectorEnv(gymnasium.vector.VectorEnv):
     Autoreset: SAME_STEP. When an episode ends, ``step`` returns the first
     observation of the next episode; ``info["final_obs"]`` (object array,
     mask ``_final_obs``) holds the last observation of the finished one and
-    ``info["final_info"]`` its step info. ``info["episode"]`` (mask
-    ``_episode``) has the finished episode's route_completion, driving_score,
+    ``info["final_info"]`` its step info. ``info["scores"]`` (mask
+    ``_scores``) has the finished episode's route_completion, driving_score,
     infraction_score (%), success, status (``metrics.driving_score.Status``),
     return, length, scenario_index. Every other info key is set for every
     environment each step (its ``_key`` mask all True).
@@ -247,19 +247,19 @@ class DriveE2EVectorEnv(gymnasium.vector.VectorEnv):
         raw = _flat_info(info)
         terminated = raw["terminated"] & done
         truncated = raw["truncated"] & done
-        episode = raw.pop("episode")
+        episode = raw.pop("scores")
         all_envs = np.ones(self.num_envs, bool)
         out = _masked(raw, all_envs)
         out["scenario_index"] = prev_index.astype(np.int64)
         out["_scenario_index"] = all_envs.copy()
         if done.any():
-            out.update(_masked({"episode": episode}, done))
+            out.update(_masked({"scores": episode}, done))
             final_np = _to_numpy_obs(final, self.single_observation_space)
             final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(done):
                 final_obs[i] = {k: np.array(v[i]) for k, v in final_np.items()}
             out["final_obs"], out["_final_obs"] = final_obs, done.copy()
-            step_info = {**raw, "episode": episode, "scenario_index": prev_index.astype(np.int64)}
+            step_info = {**raw, "scores": episode, "scenario_index": prev_index.astype(np.int64)}
             out["final_info"], out["_final_info"] = _masked(step_info, done), done.copy()
         return obs, np.array(reward, np.float64), terminated, truncated, out
 
@@ -278,7 +278,7 @@ class DriveE2EEnv(gymnasium.Env):
     ``num_envs``. After ``terminated`` / ``truncated`` call ``reset``.
 
     ``info`` of ``step``: the step facts (Python scalars) and, on the last
-    step, ``info["episode"]`` with the episode's RC / DS / status.
+    step, ``info["scores"]`` with the episode's RC / DS / status.
     """
 
     metadata = {"render_modes": []}
@@ -306,9 +306,9 @@ class DriveE2EEnv(gymnasium.Env):
         else:
             obs = {k: np.array(v[0]) for k, v in obs.items()}
         out = {k: v[0].item() for k, v in info.items()
-               if not k.startswith("_") and k not in ("final_obs", "final_info", "episode")}
+               if not k.startswith("_") and k not in ("final_obs", "final_info", "scores")}
         if done:
-            out["episode"] = {k: v[0].item() for k, v in info["episode"].items() if not k.startswith("_")}
+            out["scores"] = {k: v[0].item() for k, v in info["scores"].items() if not k.startswith("_")}
         return obs, float(reward[0]), bool(terminated[0]), bool(truncated[0]), out
 
     def close(self):

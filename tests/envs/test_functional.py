@@ -65,7 +65,7 @@ def rollout(params, log_replay):
             finite = jnp.stack([jnp.all(jnp.isfinite(x), axis=tuple(range(1, x.ndim))) for x in floats]).all(0)
             out = {"reward": reward, "done": done, "finite": finite, "index": state.index,
                    **{k: info[k] for k in ("terminated", "truncated", "discount", "progress_m", "route_completion")},
-                   **{f"episode_{k}": v for k, v in info["episode"].items()}}
+                   **{f"episode_{k}": v for k, v in info["scores"].items()}}
             return (obs, state), out
 
         (_, state), out = jax.lax.scan(body, (obs, state), jax.random.split(k_run, STEPS))

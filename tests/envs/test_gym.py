@@ -35,7 +35,7 @@ def test_check_env_passes_without_warnings():
         assert isinstance(reward, float) and obs in u.observation_space
         steps += 1
     assert steps == EPISODE_STEPS and truncated and not terminated
-    ep = info["episode"]
+    ep = info["scores"]
     assert 0 < ep["route_completion"] <= 100 and 0 <= ep["driving_score"] <= ep["route_completion"]
     assert STATUS_NAMES[ep["status"]] == "Failed - TickRuntime" and ep["length"] == EPISODE_STEPS
     env.close()
@@ -62,14 +62,14 @@ def test_vector_env_steps_autoresets_and_reports_episode_scores():
             assert info[key].shape == (2,) and info[f"_{key}"].all()
         done = terminated | truncated
         if t < EPISODE_STEPS - 1:
-            assert not done.any() and "episode" not in info
+            assert not done.any() and "scores" not in info
         if done.any():
             ended = (t, obs, info, done)
             break
     t, obs, info, done = ended
     assert t == EPISODE_STEPS - 1 and done.all()
-    np.testing.assert_array_equal(info["_episode"], done)
-    ep = info["episode"]
+    np.testing.assert_array_equal(info["_scores"], done)
+    ep = info["scores"]
     assert ((ep["route_completion"] > 0) & (ep["route_completion"] <= 100)).all()
     assert ((ep["driving_score"] >= 0) & (ep["driving_score"] <= ep["route_completion"] + 1e-4)).all()
     assert [STATUS_NAMES[s] for s in ep["status"]] == ["Failed - TickRuntime"] * 2
@@ -77,12 +77,12 @@ def test_vector_env_steps_autoresets_and_reports_episode_scores():
     np.testing.assert_array_equal(ep["length"], [EPISODE_STEPS] * 2)
     # SAME_STEP: the returned observation starts the next episode, the last one is in final_obs
     assert info["_final_obs"].all() and info["final_obs"][0] in envs.single_observation_space
-    assert info["final_info"]["_episode"].all()
+    assert info["final_info"]["_scores"].all()
     assert not np.allclose(info["final_obs"][0]["gps"], obs["gps"][0]) or not np.allclose(
         info["final_obs"][1]["gps"], obs["gps"][1])
     # the next step runs the new episodes and reports no episode end
     obs, reward, terminated, truncated, info = envs.step(envs.action_space.sample())
-    assert not (terminated | truncated).any() and "episode" not in info
+    assert not (terminated | truncated).any() and "scores" not in info
     assert np.isfinite(info["progress_m"]).all()
     envs.close()
 
@@ -92,3 +92,33 @@ def test_bad_arguments():
         DriveE2EVectorEnv(TINY, "train", 1, action="steering-wheel")
     with pytest.raises(ValueError, match="num_envs"):
         DriveE2EVectorEnv(TINY, "train", 0)
+
+
+def test_vector_env_meets_gymnasium_conventions():
+    """Gymnasium has no checker for vector envs: its single-env checks that carry
+    over (space limits, batched spaces, seeded determinism) and its own vector
+    wrapper RecordEpisodeStatistics (what CleanRL reads) on ours."""
+    from gymnasium.utils.env_checker import check_space_limit, data_equivalence
+    from gymnasium.vector.utils import batch_space
+    from gymnasium.wrappers.vector import RecordEpisodeStatistics
+
+    envs = gymnasium.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", suite=TINY, split="train")
+    check_space_limit(envs.single_observation_space, "observation")
+    check_space_limit(envs.single_action_space, "action")
+    assert envs.observation_space == batch_space(envs.single_observation_space, 2)
+    assert envs.action_space == batch_space(envs.single_action_space, 2)
+    envs.action_space.seed(1)
+    actions = [envs.action_space.sample() for _ in range(3)]
+    runs = []
+    for _ in range(2):  # same seed, same actions -> same data
+        out = [envs.reset(seed=7)]
+        out += [envs.step(a) for a in actions]
+        runs.append(out)
+    assert data_equivalence(runs[0], runs[1])
+    stats = RecordEpisodeStatistics(envs)
+    stats.reset(seed=0)
+    for _ in range(EPISODE_STEPS):
+        obs, reward, terminated, truncated, info = stats.step(envs.action_space.sample())
+    assert (terminated | truncated).all() and info["_episode"].all() and "scores" in info
+    np.testing.assert_array_equal(info["episode"]["l"], [EPISODE_STEPS] * 2)
+    stats.close()
