@@ -71,9 +71,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import importlib.util
 import math
-import sys
 import types as pytypes
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -472,20 +470,7 @@ class CarlaAgentPolicy(hostapi.HostPolicy):
     @classmethod
     def from_file(cls, path: str | Path, config: str = "", **kwargs) -> CarlaAgentPolicy:
         """The agent class named by ``get_entry_point()`` in a leaderboard agent file."""
-        p = Path(path)
-        if not p.is_file():
-            raise DriveE2EError(f"{path}: agent file not found")
-        mod_name = f"drivee2e_carla_agent_{p.stem}_{abs(hash(str(p.resolve())))}"
-        spec = importlib.util.spec_from_file_location(mod_name, p)
-        if spec is None or spec.loader is None:
-            raise DriveE2EError(f"{path}: cannot be imported as a Python module")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[mod_name] = module
-        try:
-            spec.loader.exec_module(module)
-        except Exception as e:  # a user's file: one line
-            sys.modules.pop(mod_name, None)
-            raise DriveE2EError(f"{path}: importing the agent failed: {type(e).__name__}: {e}") from e
+        module = hostapi.import_file(path, "agent")
         if not hasattr(module, "get_entry_point"):
             raise DriveE2EError(f"{path}: defines no get_entry_point() (the leaderboard's agent entry point)")
         entry = module.get_entry_point()

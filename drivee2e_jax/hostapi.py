@@ -35,6 +35,7 @@ import inspect
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from types import ModuleType
 from typing import Any, Literal
 
 import numpy as np
@@ -531,15 +532,15 @@ def validate_host_policy(policy: Any, where: str) -> HostPolicy:
 # --------------------------------------------------------------------------
 
 
-def load_policy_object(path: str | Path, **kwargs) -> Any:
-    """Import a policy file and return its ``policy`` object, or the result of
-    ``make_policy(**kwargs)``; checks nothing about the object. Imports no JAX
-    itself (the file may). DriveE2EError (one line) when the file is missing,
-    fails to import, or defines neither name, or kwargs don't fit."""
+def import_file(path: str | Path, what: str = "policy") -> ModuleType:
+    """Import a user's Python file as a fresh module (no JAX imported here);
+    DriveE2EError (one line naming the file) when it is missing or fails to
+    import. ``what`` names the file's role in messages."""
     p = Path(path)
     if not p.is_file():
-        raise DriveE2EError(f"{path}: policy file not found (expected a .py file defining `policy` or `make_policy`)")
-    mod_name = f"drivee2e_policy_{p.stem}_{abs(hash(str(p.resolve())))}"
+        hint = " (expected a .py file defining `policy` or `make_policy`)" if what == "policy" else ""
+        raise DriveE2EError(f"{path}: {what} file not found{hint}")
+    mod_name = f"drivee2e_{what}_{p.stem}_{abs(hash(str(p.resolve())))}"
     spec = importlib.util.spec_from_file_location(mod_name, p)
     if spec is None or spec.loader is None:
         raise DriveE2EError(f"{path}: cannot be imported as a Python module")
@@ -549,7 +550,16 @@ def load_policy_object(path: str | Path, **kwargs) -> Any:
         spec.loader.exec_module(module)
     except Exception as e:  # a user's file: report, don't crash
         sys.modules.pop(mod_name, None)
-        raise DriveE2EError(f"{path}: importing the policy failed: {type(e).__name__}: {e}") from e
+        raise DriveE2EError(f"{path}: importing the {what} failed: {type(e).__name__}: {e}") from e
+    return module
+
+
+def load_policy_object(path: str | Path, **kwargs) -> Any:
+    """Import a policy file and return its ``policy`` object, or the result of
+    ``make_policy(**kwargs)``; checks nothing about the object. Imports no JAX
+    itself (the file may). DriveE2EError (one line) when the file is missing,
+    fails to import, or defines neither name, or kwargs don't fit."""
+    module = import_file(path, "policy")
     if hasattr(module, "make_policy"):
         try:
             inspect.signature(module.make_policy).bind(**kwargs)

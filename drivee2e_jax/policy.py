@@ -18,15 +18,12 @@ A policy file (``--policy path/to/file.py``) defines either a module-level
 
 from __future__ import annotations
 
-import importlib.util
-import inspect
 import json
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.hostapi import HostPolicy, validate_host_policy
+from drivee2e_jax.hostapi import HostPolicy, load_policy_object, validate_host_policy
 from drivee2e_jax.remote import RemotePolicy, is_remote_spec, parse_remote_spec
 
 if TYPE_CHECKING:  # annotations only: this module imports no JAX (host policies use it)
@@ -92,31 +89,7 @@ def load_policy(path: str | Path, **kwargs) -> Policy | HostPolicy:
         pol = RemotePolicy(spec.address, **spec.kwargs, name=spec.name or None)
         pol.source = str(path)
         return pol
-    p = Path(path)
-    if not p.is_file():
-        raise DriveE2EError(f"{path}: policy file not found (expected a .py file defining `policy` or `make_policy`)")
-    mod_name = f"drivee2e_policy_{p.stem}_{abs(hash(str(p.resolve())))}"
-    spec = importlib.util.spec_from_file_location(mod_name, p)
-    if spec is None or spec.loader is None:
-        raise DriveE2EError(f"{path}: cannot be imported as a Python module")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[mod_name] = module
-    try:
-        spec.loader.exec_module(module)
-    except Exception as e:  # a user's file: report, don't crash
-        raise DriveE2EError(f"{path}: importing the policy failed: {type(e).__name__}: {e}") from e
-    if hasattr(module, "make_policy"):
-        try:
-            inspect.signature(module.make_policy).bind(**kwargs)
-        except TypeError as e:
-            raise DriveE2EError(f"{path}: make_policy does not take {sorted(kwargs)}: {e}") from e
-        pol = module.make_policy(**kwargs)
-    elif kwargs:
-        raise DriveE2EError(f"{path}: arguments {sorted(kwargs)} given, but the file defines no make_policy(**kwargs)")
-    elif hasattr(module, "policy"):
-        pol = module.policy
-    else:
-        raise DriveE2EError(f"{path}: defines neither `policy` nor `make_policy()` (expected one of them)")
+    pol = load_policy_object(path, **kwargs)
     if isinstance(pol, HostPolicy):  # runs on the host; the rollout calls it through hostbridge
         validate_host_policy(pol, str(path))
         pol.source = str(path)
