@@ -1,13 +1,15 @@
 """The one progress helper: tqdm bars on stderr (layer 0).
 
-Library code takes a ``progress`` callback or flag; the bars themselves come
-from here, so the CLI, the bench, sweeps and training look the same.
+Library code reports progress through a callback (``ProgressFn``:
+``progress(stage, done, total, info)``, or ``evaluate``'s ``progress(done,
+total)``) and never draws anything itself; the CLI passes ``ProgressBars``
+(one tqdm bar per stage), so the bench, sweeps and training look the same.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from tqdm import tqdm
@@ -42,3 +44,35 @@ class StepBar:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+#: ``progress(stage, done, total, info)``: ``done`` of ``total`` units of the
+#: named stage are finished; ``info`` holds short values to show (e.g. the loss).
+ProgressFn = Callable[[str, int, int, dict], None]
+
+
+class ProgressBars:
+    """A ``ProgressFn`` drawing one tqdm bar per stage on stderr (a new stage
+    closes the previous bar); ``close()`` when the work is done."""
+
+    def __init__(self, unit: str = "step"):
+        self.unit = unit
+        self.stage: str | None = None
+        self.bar = None
+
+    def __call__(self, stage: str, done: int, total: int, info: dict | None = None) -> None:
+        if stage != self.stage:
+            self.close()
+            self.stage = stage
+            self.bar = progress(total=total, initial=done, desc=stage, unit=self.unit)
+        if self.bar.total != total:
+            self.bar.total = total
+        self.bar.n = done
+        if info:
+            self.bar.set_postfix(info, refresh=False)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.bar, self.stage = None, None

@@ -62,7 +62,7 @@ print(f"demonstrations: {manifest['count']} samples from {TRAIN_SPLIT!r}, digest
 run = WORK / "run"
 batch = min(64, len(ds))  # the tiny test suite has only a few samples
 cfg = TrainConfig(model="ad_mlp", data=str(data), epochs=EPOCHS, batch_size=batch, warmup_steps=2, log_every=5)
-info = train(cfg, run, progress=False, print_fn=lambda line: None)
+info = train(cfg, run, print_fn=lambda line: None)
 print(f"trained {info['epochs']} epochs, {info['steps']} steps, final loss {info['loss']:.3f}")
 print("checkpoints:", sorted(p.name for p in (run / "checkpoints").iterdir()))
 

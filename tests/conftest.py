@@ -77,7 +77,7 @@ def tiny_run(tmp_path_factory, tiny_demos) -> Path:
     from drivee2e_jax.train.loop import train
 
     out = tmp_path_factory.mktemp("run")
-    train(_small_config(tiny_demos), out, progress=False, print_fn=lambda s: None)
+    train(_small_config(tiny_demos), out, print_fn=lambda s: None)
     return out
 
 

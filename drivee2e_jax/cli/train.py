@@ -44,6 +44,7 @@ def add_parser(subparsers) -> None:
 
 def run(args) -> int:
     from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.progress import ProgressBars
     from drivee2e_jax.train.loop import TrainConfig, train
 
     try:
@@ -57,7 +58,12 @@ def run(args) -> int:
         data=str(args.data), epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
         warmup_steps=args.warmup_steps, weight_decay=args.weight_decay, seed=args.seed, log_every=args.log_every,
     )
-    res = train(cfg, args.out, resume=args.resume, force=args.force, progress=not args.no_progress)
+    bars = None if args.no_progress else ProgressBars()
+    try:
+        res = train(cfg, args.out, resume=args.resume, force=args.force, progress=bars)
+    finally:
+        if bars is not None:
+            bars.close()
     print(f"trained {cfg.model}: {res['steps']} steps, last loss {res['loss']:.4f}, {res['wall_s']:.1f} s; "
           f"checkpoints in {args.out / 'checkpoints'}")
     return 0

@@ -72,7 +72,7 @@ from drivee2e_jax.files import atomic_write_json
 from drivee2e_jax.models import base
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
-from drivee2e_jax.progress import progress as bar_of
+from drivee2e_jax.progress import ProgressFn
 from drivee2e_jax.scenario import load_suite
 from drivee2e_jax.sim import SimConfig, SimState, Simulator, sanitize_controls
 from drivee2e_jax.train.loop import check_run_dir, trim_log
@@ -464,8 +464,11 @@ def load_init(init: str | Path):
 
 
 def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, force: bool = False,
-             progress: bool = True, print_fn: Callable[[str], None] = print) -> dict:
+             progress: ProgressFn | None = None, print_fn: Callable[[str], None] = print) -> dict:
     """Fine-tune ``cfg.init`` in closed loop on ``cfg.suite``/``cfg.split``; write ``out``.
+
+    ``progress("finetune", step, steps, {"loss": ..., ...})`` after every step
+    (``progress.ProgressFn``; the CLI draws a bar).
 
     Returns {"steps", "loss", "wall_s", "checkpoints"}.
     """
@@ -512,7 +515,6 @@ def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, forc
 
     t0 = time.perf_counter()
     loss = float("nan")
-    bar = bar_of(total=cfg.steps, initial=step, desc="finetune", disable=None if progress else True)
     with open(out / "log.jsonl", "a", encoding="utf-8") as log:
         while step < cfg.steps:
             (loss_value, (terms, carry)), grads = grad_fn(params, scenarios, idx, carry, st, weights)
@@ -530,8 +532,9 @@ def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, forc
                 idx = np.where(restart, rng.integers(0, n_scen, cfg.batch), idx)
                 key, k = jax.random.split(key)
                 carry = _merge(restart, reset(scenarios, idx, jax.random.split(k, cfg.batch)), carry)
-            bar.update(1)
-            bar.set_postfix(loss=f"{loss:.3f}", **{k[:4]: f"{float(terms[k]):.3f}" for k in TERMS})
+            if progress is not None:
+                progress("finetune", step, cfg.steps,
+                         {"loss": f"{loss:.3f}", **{k[:4]: f"{float(terms[k]):.3f}" for k in TERMS}})
             if step % cfg.log_every == 0 or step == 1:
                 row = {"step": step, "loss": loss, "lr": float(schedule(step - 1)), "grad_norm": float(gnorm),
                        "terms": {k: float(terms[k]) for k in TERMS}, "active_steps": float(terms["active"]),
@@ -541,7 +544,6 @@ def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, forc
             if step % cfg.ckpt_every == 0 or step == cfg.steps:
                 ckpt.save(out, step, {"params": params, "opt_state": opt_state, "step": np.int64(step)},
                           {**ck_meta, "step": step, "train_loss": loss})
-    bar.close()
     wall = time.perf_counter() - t0
     print_fn(f"fine-tuned {meta['model']}: {step} steps, last loss {loss:.4f}, {wall:.1f} s -> {out}")
     return {"steps": step, "loss": loss, "wall_s": wall, "checkpoints": [str(p) for p in ckpt.list_checkpoints(out)]}

@@ -36,7 +36,7 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.files import atomic_write_json, atomic_write_text
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
-from drivee2e_jax.progress import progress as bar_of
+from drivee2e_jax.progress import ProgressFn
 from drivee2e_jax.train.dataset import DemoDataset
 
 
@@ -150,8 +150,11 @@ def trim_log(log: Path, step: int) -> None:
 
 
 def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: bool = False,
-          progress: bool = True, print_fn: Callable[[str], None] = print) -> dict:
+          progress: ProgressFn | None = None, print_fn: Callable[[str], None] = print) -> dict:
     """Train ``cfg.model`` on ``cfg.data``, writing the run folder ``out``.
+
+    ``progress(f"epoch {e}/{E}", step_in_epoch, steps_per_epoch, {"loss": ...})``
+    after every optimiser step (``progress.ProgressFn``; the CLI draws bars).
 
     Returns {"epochs", "steps", "loss", "wall_s", "checkpoints"}.
     """
@@ -189,7 +192,6 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
     loss = float("nan")
     with open(out / "log.jsonl", "a", encoding="utf-8") as log:
         for epoch in range(start_epoch + 1, cfg.epochs + 1):
-            bar = bar_of(total=steps_per_epoch, desc=f"epoch {epoch}/{cfg.epochs}", disable=None if progress else True)
             losses = []
             for batch in ds.batches(cfg.batch_size, seed=cfg.seed, epoch=epoch):
                 batch = jax.device_put(batch, batch_sh) if batch_sh is not None else batch
@@ -197,15 +199,14 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
                 step += 1
                 loss = float(loss_value)
                 losses.append(loss)
-                bar.update(1)
-                bar.set_postfix(loss=f"{loss:.4f}")
+                if progress is not None:
+                    progress(f"epoch {epoch}/{cfg.epochs}", len(losses), steps_per_epoch, {"loss": f"{loss:.4f}"})
                 if step % cfg.log_every == 0 or step == 1:
                     row = {"step": step, "epoch": epoch, "loss": loss, "lr": float(schedule(step - 1)),
                            "metrics": {k: float(v) for k, v in metrics.items()},
                            "time": round(time.perf_counter() - t0, 3)}
                     log.write(json.dumps(row) + "\n")
                     log.flush()
-            bar.close()
             meta = {"step": step, "model": cfg.model, "model_config": dict(cfg.model_config),
                     "config": cfg_json, "data_digest": ds.digest, "data_bev": ds.manifest.get("bev"),
                     "train_loss": float(np.mean(losses))}

@@ -225,7 +225,7 @@ def test_finetune_run_folder_resume_and_policy(init_run, tmp_path, drivee2e_cach
     jax.tree_util.tree_map(np.testing.assert_array_equal, pol.params, p3)
     # No silent overwrite; --resume continues to a larger --steps.
     with pytest.raises(DriveE2EError, match="already exists"):
-        ft.finetune(dataclasses.replace(_cfg_of(out)), out, progress=False)
+        ft.finetune(dataclasses.replace(_cfg_of(out)), out)
     assert main(argv + ["--resume"]) == 0  # already at 3 steps: nothing to do
     assert main(["finetune", "--init", str(init_run), "--out", str(out), "--weights", "speed=1"]) == 2
 

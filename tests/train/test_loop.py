@@ -58,7 +58,7 @@ def test_run_folder_and_resume(tiny_demos, tiny_run, tmp_path, small_config):
 
     shutil.copytree(tiny_run, tmp_path / "run")
     shutil.rmtree(tmp_path / "run" / "checkpoints" / "2")
-    res = train(cfg, tmp_path / "run", resume=True, progress=False, print_fn=lambda s: None)
+    res = train(cfg, tmp_path / "run", resume=True, print_fn=lambda s: None)
     assert res["steps"] == 2 * spe
     a = ckpt.load_params(tiny_run)
     b = ckpt.load_params(tmp_path / "run")
@@ -68,6 +68,6 @@ def test_run_folder_and_resume(tiny_demos, tiny_run, tmp_path, small_config):
     assert steps == sorted(set(steps))  # no duplicated lines after the resume
 
     with pytest.raises(DriveE2EError, match="changed config.*lr"):
-        train(small_config(tiny_demos, lr=5e-3), tmp_path / "run", resume=True, progress=False)
+        train(small_config(tiny_demos, lr=5e-3), tmp_path / "run", resume=True)
     with pytest.raises(DriveE2EError, match="already exists"):
-        train(cfg, tmp_path / "run", progress=False)
+        train(cfg, tmp_path / "run")
