@@ -178,7 +178,8 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     print_fn(format_tables(summary))
 
     report = write_report(out)
-    print_fn(f"\nper-scenario results: {out / 'scenarios.csv'}, summary: {out / 'summary.json'}, report: {report}")
+    print_fn(f"\nper-scenario results: {out / 'scenarios.csv'}, summary: {out / 'summary.json'}, report: {report}, "
+             f"leaderboard / Bench2Drive results.json: {out / 'leaderboard'}/<policy>.json")
     return summary
 
 
