@@ -113,7 +113,7 @@ def add_parser(subparsers) -> None:
     v.add_argument("--no-curation", action="store_true", help="schema checks only")
     v.set_defaults(func=run_validate)
 
-    from drivee2e_jax.scenario.importers import FORMATS
+    from drivee2e_jax.scenario.formats import FORMATS
 
     m = common.add_command(
         actions, "import", help="convert recorded traffic (Argoverse 2, ScenarioNet, ...) into a suite folder",

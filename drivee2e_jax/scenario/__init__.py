@@ -10,18 +10,31 @@
 * ``suite``    ``load_suite("twin15" | folder)`` with a packed on-disk cache
 """
 
-from drivee2e_jax.scenario.batch import PackedBatch, SuiteMeta
-from drivee2e_jax.scenario.pack import pack, pack_buckets, unpack
-from drivee2e_jax.scenario.problems import Problem
-from drivee2e_jax.scenario.schema import read_suite, validate_suite, write_suite
-from drivee2e_jax.scenario.sizes import PackSizes
-from drivee2e_jax.scenario.suite import Suite, load_suite
+import importlib
+
+# Loaded on first use, so the host-only parts (importers, schema, curation)
+# and the CLI's parsers do not pay for JAX: name -> module of this package.
+# (``pack`` is the submodule; its function is ``scenario.pack.pack``.)
+_LAZY = {
+    "PackedBatch": "batch", "SuiteMeta": "batch",
+    "pack_buckets": "pack", "unpack": "pack",
+    "Problem": "problems",
+    "read_suite": "schema", "validate_suite": "schema", "write_suite": "schema",
+    "PackSizes": "sizes",
+    "Suite": "suite", "load_suite": "suite",
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "PackedBatch",
     "PackSizes",
     "SuiteMeta",
-    "pack",
     "pack_buckets",
     "unpack",
     "Problem",

@@ -18,7 +18,7 @@ from drivee2e_jax.eval.tasks import (
     get_task,
     logged_front_distance,
 )
-from drivee2e_jax.scenario import pack
+from drivee2e_jax.scenario.pack import pack
 from drivee2e_jax.types import SignalState
 
 

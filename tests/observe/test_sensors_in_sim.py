@@ -15,7 +15,8 @@ from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.bev import BevConfig, unpack_bits
 from drivee2e_jax.observe.lidar import LidarConfig
 from drivee2e_jax.policy import StatelessPolicy
-from drivee2e_jax.scenario import Suite, pack
+from drivee2e_jax.scenario import Suite
+from drivee2e_jax.scenario.pack import pack
 from drivee2e_jax.types import Controls
 
 SMALL = sensors.SensorConfig(bev=BevConfig(height=32, width=32, resolution=1.0, num_agents=8),

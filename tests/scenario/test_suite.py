@@ -11,9 +11,10 @@ import pytest
 
 from drivee2e_jax import files
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.scenario import Suite, load_suite, pack
+from drivee2e_jax.scenario import Suite, load_suite
 from drivee2e_jax.scenario import suite as suite_mod
 from drivee2e_jax.scenario.flat import flatten_scenario
+from drivee2e_jax.scenario.pack import pack
 from drivee2e_jax.scenario.schema import read_suite, write_suite
 
 

@@ -17,18 +17,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.scenario.formats import FORMATS
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, Skipped, write_result
 
 __all__ = ["FORMATS", "ImportOptions", "ImportResult", "Skipped", "load", "import_suite", "module"]
 
-#: CLI format name -> module name in this package.
-FORMATS: dict[str, str] = {
-    "lanelet2-csv": "lanelet2_csv",
-    "argoverse2": "argoverse2",
-    "scenarionet": "scenarionet",
-    "commonroad": "commonroad",
-    "opendrive": "opendrive",
-}
 
 
 def module(fmt: str):
