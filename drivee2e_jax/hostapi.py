@@ -219,7 +219,8 @@ def from_fields(obj: Any, cls: type = Observation):
             raise DriveE2EError(f"{type(obj).__name__} has no field {name!r} (expected the fields of "
                                 f"{cls.__name__}: {', '.join(field_names(cls))})")
         value = getattr(obj, name)
-        if value is None:  # optional, or left out by HostPolicy.observation_fields
+        # optional, or a top-level observation field left out by HostPolicy.observation_fields
+        if value is None and (name in _OPTIONAL.get(cls, ()) or cls is Observation):
             kwargs[name] = None
         elif name in _NESTED.get(cls, {}):
             kwargs[name] = from_fields(value, _NESTED[cls][name])

@@ -136,25 +136,28 @@ def wrap(policy, source: str | None = None):
     return policy
 
 
-def begin(policy, meta_rows: list[dict], first_obs=None) -> None:
+def begin(policy, meta, scenario, first_obs=None) -> None:
     """Start a batch of a (wrapped) host policy; a no-op for JAX policies.
 
+    ``meta``: the batch's ``SuiteMeta`` and ``scenario`` its ``Scenario``
+    batch, turned into ``reset``'s rows (``meta_rows``) only for a host policy.
     ``first_obs()``: the first scenario's initial observation with a batch
     axis of 1, called only to probe the number of waypoints of a waypoint
     policy that does not declare ``num_waypoints`` (one ``act`` on a
     one-scenario batch, then ``reset`` for the real one)."""
     if not isinstance(policy, HostBridge):
         return
+    rows = meta_rows(policy, meta, scenario)
     if policy.action_type == "waypoints" and policy.num_waypoints is None:
         if first_obs is None:
             raise DriveE2EError(f"{policy.source}: a waypoint host policy must declare num_waypoints")
-        policy.begin(meta_rows[:1])
+        policy.begin(rows[:1])
         policy.num_waypoints = policy.probe_num_waypoints(jax.device_get(first_obs()))
-    policy.begin(meta_rows)
+    policy.begin(rows)
 
 
 def meta_rows(policy, meta, scenario) -> list[dict]:
-    """``meta.rows()`` for ``begin``; for a host policy with ``wants_route =
+    """``meta.rows()`` for ``HostBridge.begin``; for a host policy with ``wants_route =
     True`` (CARLA-style agents, ``carla_agent``) each row also gets the
     scenario's whole route: ``route_xy`` ([[x, y], ...] world m, 1 m apart)
     and ``route_command`` ([int ``types.Command``]), its valid prefix."""

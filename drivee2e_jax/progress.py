@@ -8,6 +8,7 @@ total)``) and never draws anything itself; the CLI passes ``ProgressBars``
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -76,3 +77,15 @@ class ProgressBars:
         if self.bar is not None:
             self.bar.close()
         self.bar, self.stage = None, None
+
+
+@contextlib.contextmanager
+def progress_bars(enabled: bool = True, unit: str = "step"):
+    """``with progress_bars(not args.no_progress) as progress: train(..., progress=progress)``:
+    a ``ProgressBars`` (None when disabled), closed when the block ends."""
+    bars = ProgressBars(unit) if enabled else None
+    try:
+        yield bars
+    finally:
+        if bars is not None:
+            bars.close()

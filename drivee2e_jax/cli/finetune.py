@@ -76,7 +76,7 @@ def parse_weights(text: str):
 
 
 def run(args) -> int:
-    from drivee2e_jax.progress import ProgressBars
+    from drivee2e_jax.progress import progress_bars
     from drivee2e_jax.train.finetune import FinetuneConfig, finetune
 
     cfg = FinetuneConfig(
@@ -86,11 +86,7 @@ def run(args) -> int:
         obs_gradient=args.obs_gradient, seed=args.seed,
         log_every=args.log_every, ckpt_every=args.ckpt_every,
     )
-    bars = None if args.no_progress else ProgressBars()
-    try:
+    with progress_bars(not args.no_progress) as bars:
         res = finetune(cfg, args.out, resume=args.resume, force=args.force, progress=bars)
-    finally:
-        if bars is not None:
-            bars.close()
     print(f"checkpoints in {args.out / 'checkpoints'}: {len(res['checkpoints'])}")
     return 0

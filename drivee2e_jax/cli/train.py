@@ -44,7 +44,7 @@ def add_parser(subparsers) -> None:
 
 def run(args) -> int:
     from drivee2e_jax.errors import DriveE2EError
-    from drivee2e_jax.progress import ProgressBars
+    from drivee2e_jax.progress import progress_bars
     from drivee2e_jax.train.loop import TrainConfig, train
 
     try:
@@ -58,12 +58,8 @@ def run(args) -> int:
         data=str(args.data), epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
         warmup_steps=args.warmup_steps, weight_decay=args.weight_decay, seed=args.seed, log_every=args.log_every,
     )
-    bars = None if args.no_progress else ProgressBars()
-    try:
+    with progress_bars(not args.no_progress) as bars:
         res = train(cfg, args.out, resume=args.resume, force=args.force, progress=bars)
-    finally:
-        if bars is not None:
-            bars.close()
     print(f"trained {cfg.model}: {res['steps']} steps, last loss {res['loss']:.4f}, {res['wall_s']:.1f} s; "
           f"checkpoints in {args.out / 'checkpoints'}")
     return 0

@@ -119,7 +119,7 @@ def evaluate(
         params = init_params(policy, sim, batch, key, assets)
     if hostbridge.is_host(policy):  # one host call per step for the whole batch, on one device
         devices = devices or jax.local_devices()[:1]
-        hostbridge.begin(policy, hostbridge.meta_rows(policy, meta, batch), lambda: first_observation(sim, batch, key, assets))
+        hostbridge.begin(policy, meta, batch, lambda: first_observation(sim, batch, key, assets))
     b = int(batch.ego_index.shape[0])
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
     chunk = balanced_chunk(total, chunk, (timing or ControlTiming()).control_every)

@@ -265,7 +265,7 @@ def collect_openloop(
     reset = _cached(_RESETS, sim.config, lambda: jax.jit(jax.vmap(sim.reset, in_axes=(0, 0, axes))))
     states, obs = reset(jax.random.split(k_reset, b), batch, assets)
     obs0 = jax.tree_util.tree_map(lambda a: a[0], obs)
-    hostbridge.begin(policy, hostbridge.meta_rows(policy, meta, batch), lambda: jax.tree_util.tree_map(lambda a: a[:1], obs))
+    hostbridge.begin(policy, meta, batch, lambda: jax.tree_util.tree_map(lambda a: a[:1], obs))
     if params is None:
         params = policy.init(k_init, obs0)
 

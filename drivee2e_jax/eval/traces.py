@@ -448,7 +448,7 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(settings.seed)
     params = init_params(pol, sim, batch, key, assets)
-    hostbridge.begin(pol, hostbridge.meta_rows(pol, meta, batch), lambda: first_observation(sim, batch, key, assets))
+    hostbridge.begin(pol, meta, batch, lambda: first_observation(sim, batch, key, assets))
     total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
     chunk = balanced_chunk(total, 50, settings.timing.control_every)  # as evaluate chunks it
     ro = TracingRollout(sim, pol, params, timing=settings.timing, chunk=chunk, assets=assets)

@@ -78,7 +78,7 @@ def _batch(n: int):
     packed = load_suite("twin15").pack("val")
     rows = np.arange(n) % len(packed)
     packed = packed.select(rows)
-    return jax.tree_util.tree_map(jnp.asarray, packed.scenario), packed.meta.rows()
+    return jax.tree_util.tree_map(jnp.asarray, packed.scenario), packed.meta
 
 
 def scanned(policy, batch, meta, steps: int, chunk: int = 50) -> float:
@@ -86,11 +86,11 @@ def scanned(policy, batch, meta, steps: int, chunk: int = 50) -> float:
     sim = Simulator(SimConfig())
     ro = Rollout(sim, policy, None, chunk=chunk)
     keys = jax.random.split(jax.random.PRNGKey(0), int(batch.ego_index.shape[0]))
-    hostbridge.begin(policy, meta)
+    hostbridge.begin(policy, meta, batch)
     carry = ro.init(batch, keys)
     carry, _ = ro.advance(batch, carry)  # compile + warm up
     jax.block_until_ready(carry)
-    hostbridge.begin(policy, meta)
+    hostbridge.begin(policy, meta, batch)
     carry = ro.init(batch, keys)
     t0 = time.perf_counter()
     for _ in range(steps // chunk):
@@ -111,7 +111,7 @@ def segments(host: hostapi.HostPolicy, batch, meta, steps: int) -> float:
 
     def run(n: int):
         state = reset(keys, batch)
-        pstate = host.reset(meta)
+        pstate = host.reset(meta.rows())
         for _ in range(n):
             obs = jax.device_get(observe(batch, state))  # device -> host
             action, pstate = host.act(hostapi.from_fields(obs), pstate)
