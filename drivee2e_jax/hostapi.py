@@ -330,7 +330,7 @@ def check_action(action: Any, action_type: str, batch: int, where: str, *,
     a new container of C-contiguous float32 numpy arrays.
 
     Raises :class:`DriveE2EError`, one line starting with ``where`` (e.g.
-    ``"policies/my_torch.py, step 12"``), naming the field and the expected
+    ``"my_torch.py, step 12"``), naming the field and the expected
     vs the received shape/dtype, when the action is of the wrong kind (a dict,
     a tuple, Controls for a waypoint policy ...), a leaf is not numeric
     (strings, objects, complex, bool), has the wrong shape or the wrong batch

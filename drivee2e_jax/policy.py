@@ -33,7 +33,9 @@ ActionType = Literal["controls", "waypoints"]
 
 #: Policies ``drivee2e bench`` runs when none is named.
 DEFAULT_POLICIES = ("log_replay", "expert", "stop")
-#: Policies in the repository's policies/ folder, accepted by name.
+#: Rule-based policies of the zoo (``drivee2e_jax/zoo/``), accepted by name and
+#: runnable without a checkpoint. ``reference_policy_names()`` lists every
+#: policy the zoo ships (the learned ones need a checkpoint argument).
 REFERENCE_POLICIES = (*DEFAULT_POLICIES, "constant_velocity")
 
 
@@ -107,7 +109,7 @@ def parse_policy_spec(spec: str) -> tuple[Path | str, dict, str]:
     result name; a ``remote://`` spec stays text). Values are JSON when they parse (numbers, true, lists), else
     text; the key ``name`` renames the policy in the results instead.
 
-    Example: ``policies/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3``.
+    Example: ``drivee2e_jax/zoo/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3``.
     """
     if is_remote_spec(spec):  # remote://HOST:PORT[:timeout_s=S,name=N]: kept as text, read by load_policy
         return spec, {}, parse_remote_spec(spec).name or ""
@@ -131,14 +133,22 @@ def resolve_policy_path(spec: str) -> Path:
     path = Path(spec)
     if path.suffix == ".py" or path.exists():
         if not path.is_file():
-            raise DriveE2EError(f"{spec}: policy file not found (expected a .py file or one of {', '.join(REFERENCE_POLICIES)})")
+            raise DriveE2EError(f"{spec}: policy file not found (expected a .py file or one of "
+                                f"{', '.join(reference_policy_names())})")
         return path
     ref = reference_policy_dir() / f"{spec}.py"
     if ref.is_file():
         return ref
-    raise DriveE2EError(f"--policy {spec}: not a file and not a reference policy (expected a .py path or one of {', '.join(REFERENCE_POLICIES)})")
+    raise DriveE2EError(f"--policy {spec}: not a file and not a policy of the zoo (expected a .py path or one of "
+                        f"{', '.join(reference_policy_names())})")
 
 
 def reference_policy_dir() -> Path:
-    """The repository's ``policies/`` folder (next to the package)."""
-    return Path(__file__).resolve().parents[1] / "policies"
+    """The policy zoo's folder, ``drivee2e_jax/zoo/`` (inside the installed
+    package, so names resolve from any directory and from a wheel)."""
+    return Path(__file__).resolve().parent / "zoo"
+
+
+def reference_policy_names() -> tuple[str, ...]:
+    """Every policy name the zoo ships (file stems of ``reference_policy_dir()``)."""
+    return tuple(sorted(f.stem for f in reference_policy_dir().glob("*.py") if not f.name.startswith("_")))

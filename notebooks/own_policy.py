@@ -137,7 +137,7 @@ print("waypoints", a1.xy.shape, "first scenario:", np.round(np.asarray(a1.xy[0])
 
 # %%
 rows = {}
-for policy in (mine, *(load_policy(ROOT / "policies" / f"{n_}.py") for n_ in ("expert", "stop"))):
+for policy in (mine, *(load_policy(ROOT / "drivee2e_jax" / "zoo" / f"{n_}.py") for n_ in ("expert", "stop"))):
     res = de.evaluate(policy, packed, None, limit=LIMIT)
     rows[policy.name] = res.rows
     ds = np.mean([r["driving_score"] for r in res.rows])

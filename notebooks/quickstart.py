@@ -48,7 +48,7 @@ print("first scenario:", {k: first[k] for k in ("scenario_id", "intersection_id"
 # %%
 results = {}
 for name in ("log_replay", "expert", "stop"):
-    policy = load_policy(ROOT / "policies" / f"{name}.py")
+    policy = load_policy(ROOT / "drivee2e_jax" / "zoo" / f"{name}.py")
     res = de.evaluate(policy, packed, None, limit=LIMIT)
     results[name] = res
     ds = np.mean([r["driving_score"] for r in res.rows])
@@ -93,7 +93,7 @@ from drivee2e_jax.eval.traces import trace_episodes
 from drivee2e_jax.viz.player import write_player
 
 out = Path(tempfile.mkdtemp()) / "results"
-summary = run_bench(BenchConfig(suite=SUITE, split=SPLIT, policies=(str(ROOT / "policies" / "expert.py"),),
+summary = run_bench(BenchConfig(suite=SUITE, split=SPLIT, policies=(str(ROOT / "drivee2e_jax" / "zoo" / "expert.py"),),
                                 out=out, limit=LIMIT, progress=False), print_fn=lambda line: None)
 print("results folder:", sorted(p.name for p in out.iterdir()))
 first_id = row["scenario_id"]

@@ -81,7 +81,7 @@ def show(res) -> None:
 
 
 results = {}
-for policy in (route_follow, load_policy(ROOT / "policies" / "stop.py")):
+for policy in (route_follow, load_policy(ROOT / "drivee2e_jax" / "zoo" / "stop.py")):
     results[policy.name] = de.evaluate(policy, packed, None, limit=LIMIT)
     show(results[policy.name])
 

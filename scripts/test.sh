@@ -5,7 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 python -m pip install --quiet -e ".[test]"
 # ruff: pyflakes, isort, bugbear, pyupgrade, module-level imports (pyproject.toml [tool.ruff]).
-python -m ruff check drivee2e_jax tests experiments notebooks policies scripts
+python -m ruff check drivee2e_jax tests experiments notebooks scripts
 # import-linter: the layers contract of docs/architecture.md (pyproject.toml [tool.importlinter]).
 lint-imports --no-cache
 # Two workers by default (PYTEST_WORKERS=0 runs in one process): compiling

@@ -22,7 +22,7 @@ from drivee2e_jax.types import Controls, EgoState
 from tests.helpers import sim_scenarios as ss
 
 P = dyn.BicycleParams()
-POLICIES = Path(__file__).resolve().parents[1] / "policies"
+POLICIES = Path(__file__).resolve().parents[1] / "drivee2e_jax" / "zoo"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,7 +13,7 @@ from drivee2e_jax import hostapi, types
 from drivee2e_jax.errors import DriveE2EError
 from tests.helpers.host_policies import make_observation, write_tiny_policy
 
-WHERE = "policies/my_torch.py, step 7"
+WHERE = "my_torch.py, step 7"
 
 
 def _flax_nested(cls) -> dict[str, type]:
@@ -174,7 +174,7 @@ def test_non_numeric_leaves_are_errors():
 
 
 def test_act_must_return_a_pair():
-    with pytest.raises(DriveE2EError, match=r"^policies/my_torch.py, step 7: act\(obs, state\) returned a drivee2e_jax.hostapi.Controls, expected a pair"):
+    with pytest.raises(DriveE2EError, match=r"^my_torch.py, step 7: act\(obs, state\) returned a drivee2e_jax.hostapi.Controls, expected a pair"):
         hostapi.check_act_result(hostapi.Controls(0, 0, 0), WHERE)
     assert hostapi.check_act_result((1, 2), WHERE) == (1, 2)
 

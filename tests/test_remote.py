@@ -41,7 +41,7 @@ def test_parse_remote_spec():
     assert s == remote.RemoteSpec(address="tcp://127.0.0.1:5555", kwargs={}, name="")
     s = remote.parse_remote_spec("remote://localhost:6000:timeout_s=120,name=torch_uniad")
     assert s.address == "tcp://localhost:6000" and s.kwargs == {"timeout_s": 120.0} and s.name == "torch_uniad"
-    assert remote.is_remote_spec("remote://h:1") and not remote.is_remote_spec("policies/expert.py")
+    assert remote.is_remote_spec("remote://h:1") and not remote.is_remote_spec("drivee2e_jax/zoo/expert.py")
     for bad, why in [("remote://127.0.0.1", "expected remote://HOST:PORT"), ("remote://h:99999", "port '99999'"),
                      ("remote://h:abc", "port 'abc'"), ("remote://h:5:colour=red", "unknown option 'colour=red'"),
                      ("remote://h:5:timeout_s=-1", "timeout_s='-1'"), ("tcp://h:5", "not a remote policy spec")]:

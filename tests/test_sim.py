@@ -20,7 +20,7 @@ from drivee2e_jax.sim import SimConfig, Simulator, sanitize_controls
 from drivee2e_jax.types import Controls
 from tests.helpers import sim_scenarios as ss
 
-POLICIES = Path(__file__).resolve().parents[1] / "policies"
+POLICIES = Path(__file__).resolve().parents[1] / "drivee2e_jax" / "zoo"
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from drivee2e_jax.testing import TINY_SUITE, Problem, check_policy, check_policy
 
 #: Small and shared: every check below reuses one set of observations.
 SMALL = {"batch": 2, "steps": 2}
-REPO = reference_policy_dir().parent
+REPO = reference_policy_dir().parents[1]
 
 JAX_HEADER = """\
 import time
@@ -74,7 +74,7 @@ def _assert_one_line_naming(report, path) -> None:
 
 @pytest.mark.parametrize("name", ["log_replay", "expert", "stop", "constant_velocity"])
 def test_reference_policies_conform(name):
-    report = check_policy_file(REPO / "policies" / f"{name}.py", **SMALL)
+    report = check_policy_file(REPO / "drivee2e_jax" / "zoo" / f"{name}.py", **SMALL)
     assert report.ok, [str(p) for p in report]
     assert report.summary.startswith(f"{name}: JAX policy, ")
     assert ("Waypoints xy (6, 2) float32" if name == "constant_velocity" else "Controls") in report.summary
@@ -83,7 +83,7 @@ def test_reference_policies_conform(name):
 def test_model_policy_with_random_init_conforms():
     from drivee2e_jax.models.base import policy_from_checkpoint
 
-    report = check_policy(policy_from_checkpoint("ad_mlp", None, "traj"), source="policies/ad_mlp.py", **SMALL)
+    report = check_policy(policy_from_checkpoint("ad_mlp", None, "traj"), source="drivee2e_jax/zoo/ad_mlp.py", **SMALL)
     assert report.ok, [str(p) for p in report]
     assert "Waypoints xy (6, 2) float32" in report.summary and "state: 7 leaves" in report.summary
 

@@ -4,7 +4,7 @@ that runs outside JAX (the same could call PyTorch, ONNX Runtime, ...).
     drivee2e bench --policy docs/examples/numpy_constant_velocity.py --policy constant_velocity
 
 It gives the same per-scenario results as the JAX reference policy
-``policies/constant_velocity.py`` (tests/test_hostbridge.py checks it): the
+``drivee2e_jax/zoo/constant_velocity.py`` (tests/test_hostbridge.py checks it): the
 host policy receives the observation of every scenario at once (numpy, leading
 batch axis B) and returns B actions.
 """

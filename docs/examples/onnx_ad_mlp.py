@@ -88,7 +88,7 @@ def features(history: np.ndarray, obs) -> np.ndarray:
 
 
 class OnnxADMLP(HostPolicy):
-    """AD-MLP's ONNX graph on ONNX Runtime; Waypoints like ``policies/ad_mlp.py``."""
+    """AD-MLP's ONNX graph on ONNX Runtime; Waypoints like ``drivee2e_jax/zoo/ad_mlp.py``."""
 
     action_type = "waypoints"
 

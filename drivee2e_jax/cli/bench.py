@@ -8,12 +8,12 @@ from pathlib import Path
 EPILOG = """\
 examples:
   drivee2e bench                                   # twin15 val, the three reference policies
-  drivee2e bench --policy policies/expert.py --split test --out results/expert-test
+  drivee2e bench --policy expert --split test --out results/expert-test
   drivee2e bench --suite path/to/suite --policy my_policy.py --control-every 2 --latency 1
   drivee2e bench --open-loop --policy constant_velocity --policy expert --out results/ol
   drivee2e bench --task lane_following --policy expert --repetitions 3
   drivee2e bench --variant visible_vehicles --policy log_replay --policy expert
-  drivee2e bench --policy policies/ad_mlp.py:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3 --policy stop
+  drivee2e bench --policy ad_mlp:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3 --policy stop
   drivee2e bench --coordinator 10.0.0.1:4000 --num-processes 2 --process-id 0   # and --process-id 1 elsewhere
 
 Reference policies can be named without a path: log_replay, expert, stop,

@@ -7,9 +7,9 @@ from drivee2e_jax.cli.common import EXIT_OK, EXIT_PROBLEMS, add_command
 EPILOG = """\
 examples:
   drivee2e check-policy my_policy.py
-  drivee2e check-policy policies/expert.py policies/constant_velocity.py
+  drivee2e check-policy expert constant_velocity
   drivee2e check-policy docs/examples/numpy_constant_velocity.py      # a host policy
-  drivee2e check-policy policies/ad_mlp.py:checkpoint=runs/ad_mlp --suite twin15
+  drivee2e check-policy ad_mlp:checkpoint=runs/ad_mlp --suite twin15
   drivee2e check-policy stop --batch 2 --steps 2
 
 FILE defines `policy` or `make_policy(**kwargs)` (FILE:key=value,... passes

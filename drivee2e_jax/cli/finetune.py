@@ -11,7 +11,7 @@ examples:
   drivee2e finetune --init runs/vector_transformer --split train --out runs/finetune/vt
   drivee2e finetune --init runs/vector_transformer --out runs/finetune/vt --resume
   drivee2e finetune --init runs/ad_mlp --out runs/finetune/ad_mlp --steps 200 --horizon 20 --batch 8 --weights red_light=5
-  drivee2e bench --split val --policy policies/vector_transformer.py:checkpoint=runs/finetune/vt,name=vt_ft
+  drivee2e bench --split val --policy vector_transformer:checkpoint=runs/finetune/vt,name=vt_ft
 
 Each step drives a pool of --batch episodes --horizon steps further with the
 current policy (on-policy states) and backpropagates the loss (soft collision,

@@ -56,10 +56,10 @@ from drivee2e_jax.policy import REFERENCE_POLICIES as KNOWN_REFERENCES  # names 
 
 #: model -> (demonstrations folder, default epochs, evaluated policies as (result name, policy file)).
 MODELS = {
-    "ad_mlp": ("data/demos-train", 20, (("ad_mlp", "policies/ad_mlp.py"),)),
-    "tcp": ("data/demos-train-bev", 8, (("tcp", "policies/tcp.py"), ("tcp_traj", "policies/tcp_traj.py"),
-                                         ("tcp_ctrl", "policies/tcp_ctrl.py"))),
-    "vector_transformer": ("data/demos-train", 16, (("vector_transformer", "policies/vector_transformer.py"),)),
+    "ad_mlp": ("data/demos-train", 20, (("ad_mlp", "ad_mlp"),)),
+    "tcp": ("data/demos-train-bev", 8, (("tcp", "tcp"), ("tcp_traj", "tcp_traj"),
+                                         ("tcp_ctrl", "tcp_ctrl"))),
+    "vector_transformer": ("data/demos-train", 16, (("vector_transformer", "vector_transformer"),)),
 }
 #: Reference policies always evaluated (lower bound and the simplest mover).
 REFERENCES = ("stop", "constant_velocity")

@@ -15,7 +15,7 @@ times the sum of all leaves), and the host variants run both ways
 
     python experiments/perf/host_policy.py [--batch 200] [--steps 200] [--rounds 2] [--json]
 
-The policy is constant_velocity (``policies/constant_velocity.py``) and its
+The policy is constant_velocity (``drivee2e_jax/zoo/constant_velocity.py``) and its
 numpy twin (``docs/examples/numpy_constant_velocity.py``): the same
 waypoints, so the three variants simulate the same episodes. Each variant is
 compiled and warmed up first, then timed over ``--steps`` steps; the variants
@@ -133,7 +133,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     steps = max(50, args.steps // 50 * 50)
     batch, meta = _batch(args.batch)
-    jax_pol = load_policy(ROOT / "policies" / "constant_velocity.py")
+    jax_pol = load_policy(ROOT / "drivee2e_jax" / "zoo" / "constant_velocity.py")
     host = load_policy(ROOT / "docs" / "examples" / "numpy_constant_velocity.py")
     host_full = AllFields(host)
     variants = {

@@ -51,7 +51,7 @@ def _setup(suite: str, batch: int, chunk: int):
     n = len(packed.meta)
     rows = [i % n for i in range(batch)]
     scn = jax.tree_util.tree_map(jnp.asarray, packed.select(rows).scenario)
-    pol = load_policy(ROOT / "policies" / "log_replay.py")
+    pol = load_policy(ROOT / "drivee2e_jax" / "zoo" / "log_replay.py")
     ro = Rollout(Simulator(SimConfig()), pol, None, chunk=chunk)
     return ro, scn
 

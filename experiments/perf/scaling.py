@@ -55,7 +55,7 @@ def child(args) -> None:
     shard = distributed.process_shard(len(packed))
     batch, _ = device_batch(packed.select(np.asarray(shard)))
     sim = Simulator(SimConfig())
-    pol = load_policy(ROOT / "policies" / "expert.py")
+    pol = load_policy(ROOT / "drivee2e_jax" / "zoo" / "expert.py")
     key = jax.random.PRNGKey(0)
     params = init_params(pol, sim, batch, key)
     run_batch, keys, _ = shard_rollout_inputs(batch, jax.random.split(key, len(shard)), None)

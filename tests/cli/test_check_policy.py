@@ -7,7 +7,7 @@ from drivee2e_jax.cli import main
 from drivee2e_jax.policy import reference_policy_dir
 
 SMALL = ["--batch", "2", "--steps", "2"]
-HOST_EXAMPLE = reference_policy_dir().parent / "docs" / "examples" / "numpy_constant_velocity.py"
+HOST_EXAMPLE = reference_policy_dir().parents[1] / "docs" / "examples" / "numpy_constant_velocity.py"
 
 BAD = """\
 import jax.numpy as jnp
@@ -34,7 +34,7 @@ def test_conformant_policies_exit_0(capsys):
     out = capsys.readouterr().out.splitlines()
     assert code == 0, out
     assert len(out) == 2
-    assert out[0].startswith("ok: ") and "policies/stop.py (stop: JAX policy, Controls" in out[0]
+    assert out[0].startswith("ok: ") and "drivee2e_jax/zoo/stop.py (stop: JAX policy, Controls" in out[0]
     assert out[1].startswith(f"ok: {HOST_EXAMPLE} (np_constant_velocity: host policy, Waypoints xy (B, 6, 2) float32")
 
 

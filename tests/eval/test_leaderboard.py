@@ -282,7 +282,7 @@ def test_bench2drive_tools_on_the_hand_built_case(tmp_path, monkeypatch):
 def tiny_run(tmp_path_factory):
     """A real bench: the tiny suite, constant-velocity policy (test_traces's settings: one shared compile)."""
     out = tmp_path_factory.mktemp("lb") / "run"
-    cfg = BenchConfig(suite=str(TINY), split="train", policies=(str(REPO / "policies" / "constant_velocity.py"),),
+    cfg = BenchConfig(suite=str(TINY), split="train", policies=(str(REPO / "drivee2e_jax" / "zoo" / "constant_velocity.py"),),
                       out=out, limit=2, progress=False)
     run_bench(cfg, print_fn=lambda s: None)
     return out

@@ -23,7 +23,7 @@ from drivee2e_jax.policy import StatelessPolicy, load_policy
 from drivee2e_jax.types import Waypoints
 from tests.helpers import sim_scenarios as ss
 
-POLICIES = Path(__file__).resolve().parents[2] / "policies"
+POLICIES = Path(__file__).resolve().parents[2] / "drivee2e_jax" / "zoo"
 KEYS = ("l2_1s_stp3", "l2_2s_stp3", "l2_3s_stp3", "l2_1s_uniad", "l2_2s_uniad", "l2_3s_uniad",
         "openloop_collision_rate", "openloop_samples")
 L2_KEYS = KEYS[:6]

@@ -25,7 +25,7 @@ POLICY = POLICIES[0]
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("episodes") / "run"
-    cfg = BenchConfig(suite=str(TINY), split="train", policies=tuple(str(REPO / "policies" / f"{p}.py") for p in POLICIES),
+    cfg = BenchConfig(suite=str(TINY), split="train", policies=tuple(str(REPO / "drivee2e_jax" / "zoo" / f"{p}.py") for p in POLICIES),
                       out=out, limit=2, progress=False)
     run_bench(cfg, print_fn=lambda s: None)
     return out

@@ -28,7 +28,7 @@ PER_STEP = ("tf", "scene", "bev", "lidar", "metrics")
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("mcap") / "run"
-    cfg = BenchConfig(suite=str(TINY), split="train", policies=(str(REPO / "policies" / "constant_velocity.py"),), out=out,
+    cfg = BenchConfig(suite=str(TINY), split="train", policies=(str(REPO / "drivee2e_jax" / "zoo" / "constant_velocity.py"),), out=out,
                       limit=2, progress=False)
     run_bench(cfg, print_fn=lambda s: None)
     return out

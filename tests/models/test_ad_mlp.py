@@ -1,4 +1,4 @@
-"""policies/ad_mlp.py: loads a checkpoint; its act is pure and jit/vmap-compatible."""
+"""drivee2e_jax/zoo/ad_mlp.py: loads a checkpoint; its act is pure and jit/vmap-compatible."""
 
 from pathlib import Path
 
@@ -13,7 +13,7 @@ from drivee2e_jax.policy import load_policy
 from drivee2e_jax.train.dataset import DemoDataset
 from drivee2e_jax.types import Waypoints
 
-POLICY = Path(__file__).resolve().parents[2] / "policies" / "ad_mlp.py"
+POLICY = Path(__file__).resolve().parents[2] / "drivee2e_jax" / "zoo" / "ad_mlp.py"
 
 
 def test_needs_a_checkpoint(monkeypatch):

@@ -1,5 +1,5 @@
 """The vector-scene transformer (``models/vector_transformer.py``,
-``policies/vector_transformer.py``): shapes, purity, padding and order
+``drivee2e_jax/zoo/vector_transformer.py``): shapes, purity, padding and order
 invariance, training on a fixed batch, the policy in ``evaluate``."""
 
 from __future__ import annotations
@@ -109,7 +109,7 @@ def test_policy_file_restores_a_checkpoint_and_runs_in_evaluate(model, batch, pa
     from drivee2e_jax.policy import load_policy
 
     checkpoint.save(tmp_path, 3, {"params": params}, {"model": "vector_transformer", "model_config": CONFIG})
-    pol = load_policy(REPO / "policies" / "vector_transformer.py", checkpoint=tmp_path)
+    pol = load_policy(REPO / "drivee2e_jax" / "zoo" / "vector_transformer.py", checkpoint=tmp_path)
     assert (pol.name, pol.action_type, pol.model) == ("vector_transformer", "waypoints", model)
     np.testing.assert_allclose(apply(pol.params, first(batch.obs)).waypoints, apply(params, first(batch.obs)).waypoints)
     res = evaluate(pol, load_suite(TINY), None, limit=2, config=SimConfig(max_episode_s=1.0))

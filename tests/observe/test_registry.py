@@ -158,7 +158,7 @@ def test_mcap_topics_follow_the_display(toys):
 
 def test_a_registered_sensor_is_traced_shown_and_exported(toys, tmp_path):
     out = tmp_path / "run"
-    run_bench(BenchConfig(suite=str(TINY), split="train", policies=(str(REPO / "policies" / "constant_velocity.py"),),
+    run_bench(BenchConfig(suite=str(TINY), split="train", policies=(str(REPO / "drivee2e_jax" / "zoo" / "constant_velocity.py"),),
                           out=out, limit=1, progress=False), print_fn=lambda s: None)
     (tr,) = episodes.trace_episodes(out, sensors=("gauge", "beacon"))
     assert tr.reproduced and tr.bev is None and tr.lidar_points is None

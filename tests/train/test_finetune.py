@@ -221,7 +221,7 @@ def test_finetune_run_folder_resume_and_policy(init_run, tmp_path, drivee2e_cach
     jax.tree_util.tree_map(np.testing.assert_array_equal, p0, il)
     assert any(not np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(p3), jax.tree_util.tree_leaves(il)))
     # The run drives like any imitation run.
-    pol = load_policy(REPO / "policies" / "ad_mlp.py", checkpoint=str(out))
+    pol = load_policy(REPO / "drivee2e_jax" / "zoo" / "ad_mlp.py", checkpoint=str(out))
     jax.tree_util.tree_map(np.testing.assert_array_equal, pol.params, p3)
     # No silent overwrite; --resume continues to a larger --steps.
     with pytest.raises(DriveE2EError, match="already exists"):

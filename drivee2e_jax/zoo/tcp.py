@@ -8,11 +8,11 @@ trajectory head and a control head. ``mode``:
   controller; going straight the trajectory branch leads (0.7 / 0.3), turning
   (more than 10 of the last 20 fused steers above 0.1, TCP's memory, kept in
   the policy state) the control branch leads;
-* ``traj`` (``policies/tcp_traj.py``, "TCP-traj"): waypoints only, tracked by
+* ``traj`` (``drivee2e_jax/zoo/tcp_traj.py``, "TCP-traj"): waypoints only, tracked by
   the simulator's PID + pure pursuit;
-* ``ctrl`` (``policies/tcp_ctrl.py``, "TCP-ctr"): the control head only.
+* ``ctrl`` (``drivee2e_jax/zoo/tcp_ctrl.py``, "TCP-ctr"): the control head only.
 
-Usage: ``load_policy("policies/tcp.py", checkpoint=RUN_DIR)`` or
+Usage: ``load_policy("drivee2e_jax/zoo/tcp.py", checkpoint=RUN_DIR)`` or
 ``BenchConfig(policies=("tcp",), policy_kwargs=({"checkpoint": RUN_DIR},))``,
 where RUN_DIR is a ``drivee2e train --model tcp`` run folder, its
 ``checkpoints/`` or one ``checkpoints/<epoch>`` (the model config is read

@@ -1,6 +1,6 @@
 """`tcp_ctrl`: the TCP-like baseline's control head alone (the source's "TCP-ctr" row).
 
-Throttle / brake / steer straight from the network; see ``policies/tcp.py``
+Throttle / brake / steer straight from the network; see ``drivee2e_jax/zoo/tcp.py``
 (same checkpoint argument).
 """
 

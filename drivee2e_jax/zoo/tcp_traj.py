@@ -1,7 +1,7 @@
 """`tcp_traj`: the TCP-like baseline's trajectory head alone (the source's "TCP-traj" row).
 
 Waypoints tracked by the simulator's PID + pure-pursuit controller; see
-``policies/tcp.py`` (same checkpoint argument).
+``drivee2e_jax/zoo/tcp.py`` (same checkpoint argument).
 """
 
 from pathlib import Path
