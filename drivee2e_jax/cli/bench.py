@@ -28,8 +28,11 @@ and average speed 0.7-1.1 x the speed limit); see drivee2e_jax/eval/tasks.py.
 cameras along the logged run removed: visible_vehicles (vehicles only) or
 visible_all (every category); complete (default) = as recorded. The masks are
 computed once per split and cached (scenario/variants.py).
-Results go to results/<suite>-<split>[-<task>][-<variant>]/ unless --out is given; a rerun resumes
-(finished policies are skipped) and never overwrites without --force.
+Results go to results/<suite>-<split>[-<task>][-<variant>]/ unless --out is given. One run at a
+time writes a folder (a second one stops, naming the first). A rerun resumes: a finished policy is
+skipped only while the suite content, settings, package version and its policy file / arguments /
+checkpoint are unchanged (else the run stops and says what changed; --force starts over); remote
+policies are always re-run. The tables list every finished policy of the folder (docs/results.md).
 """
 
 
@@ -43,7 +46,8 @@ def add_parser(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--suite", default="twin15", help="suite name (twin15) or suite folder (default: twin15)")
-    p.add_argument("--split", default="val", help="split to evaluate (default: val)")
+    p.add_argument("--split", default=None,
+                   help="split to evaluate (default: val, or the suite's only non-empty split)")
     p.add_argument(
         "--policy",
         action="append",
@@ -60,7 +64,8 @@ def add_parser(subparsers) -> None:
         choices=("paper", "drivee2e", "lb20", "lb21", "b2d"),
         help="scoring rules (default: paper = DriveE2E as its paper defines SR/DS; see docs/metrics.md)",
     )
-    p.add_argument("--dt", type=float, default=0.1, help="simulation step in seconds (default: 0.1)")
+    p.add_argument("--dt", type=float, default=0.1,
+                   help="simulation step in seconds, 0 < dt <= 1 and <= the log step (default: 0.1)")
     p.add_argument("--control-every", type=int, default=1, help="query the policy every k sim steps (default: 1)")
     p.add_argument("--latency", type=int, default=0, help="action latency in sim steps (default: 0)")
     p.add_argument("--limit", type=int, default=None, help="evaluate only the first N scenarios of the split")

@@ -2,15 +2,20 @@
 
 ``run_bench(BenchConfig(...))`` is what ``drivee2e bench`` calls. Each policy
 is one batched rollout over the whole split; finished policies are saved
-atomically and skipped when the run is resumed.
+atomically and skipped when the run is resumed, if their fingerprints still
+match (the results folder's rules: ``eval.results``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.metadata
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
+
+import jax
 
 from drivee2e_jax import hostbridge
 from drivee2e_jax.errors import DriveE2EError
@@ -19,13 +24,22 @@ from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.eval.leaderboard import write_leaderboard_results
 from drivee2e_jax.eval.openloop import evaluate_openloop
 from drivee2e_jax.eval.report import write_report
-from drivee2e_jax.eval.results import RunDir, event_key
-from drivee2e_jax.eval.runspec import RunSpec
+from drivee2e_jax.eval.results import (
+    RunDir,
+    event_key,
+    package_version,
+    policy_fingerprint,
+    policy_provenance,
+    run_provenance,
+)
+from drivee2e_jax.eval.runspec import RunSpec, batch_sha256, check_dt_against_logs, pick_split
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, finite, format_tables, summarize
 from drivee2e_jax.eval.tasks import add_task_success
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.policy import load_policy
 from drivee2e_jax.progress import StepBar
+from drivee2e_jax.remote import is_remote_spec
+from drivee2e_jax.scenario import load_suite
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,7 +47,9 @@ class BenchConfig:
     """One benchmark run (CLI flags map one to one).
 
     Attributes:
-      suite: suite name or folder.  split: split name.
+      suite: suite name or folder.  split: split name; None = ``val`` when
+        the suite has val scenarios, else its only non-empty split
+        (``runspec.pick_split``).
       policies: policy file paths.  out: results folder (default results/<suite>-<split>).
       force: overwrite existing results.  preset: scoring rules.
       dt: sim step, s.  control_every / latency: control timing, steps.
@@ -61,7 +77,7 @@ class BenchConfig:
     """
 
     suite: str = "twin15"
-    split: str = "val"
+    split: str | None = "val"
     policies: tuple[str, ...] = ()
     out: Path | None = None
     force: bool = False
@@ -85,8 +101,9 @@ class BenchConfig:
     process_id: int | None = None
 
     def run_spec(self) -> RunSpec:
-        """The requested ``RunSpec`` of this run (``run.json`` once resolved).
-        Raises DriveE2EError for a bad limit, repetitions, task or variant."""
+        """The requested ``RunSpec`` of this run (``run.json`` once resolved;
+        ``split`` None until ``run_bench`` picks one). Raises DriveE2EError
+        for a bad dt, timing, seed, limit, repetitions, noise, task or variant."""
         return RunSpec(
             suite=self.suite, split=self.split, preset=self.preset, dt=self.dt, control_every=self.control_every,
             latency=self.latency, seed=self.seed, open_loop=self.open_loop, task=self.task,
@@ -97,46 +114,85 @@ class BenchConfig:
 
 def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict:
     """Run, write ``results/<run>/`` and print the tables. Returns the summary
-    ({} on processes other than 0, which write and print nothing)."""
+    ({} on processes other than 0, which write and print nothing).
+
+    Nothing is written to the results folder before every setting is checked,
+    the suite packed and every policy loaded; the folder's rules (lock,
+    fingerprints, resume, provenance) are ``eval.results``'."""
 
     multi = distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)  # before any JAX work
     if not distributed.is_root():
         print_fn = _silent
 
-    spec = cfg.run_spec()  # checks limit, repetitions, task, variant
+    cfg.run_spec()  # checks dt, timing, seed, limit, repetitions, task, variant before the suite loads
+    suite = load_suite(cfg.suite)
+    if cfg.split is None:
+        split, note = pick_split(suite.splits, f"suite {suite.name}")
+        print_fn(note)
+        cfg = dataclasses.replace(cfg, split=split)
+    spec = cfg.run_spec()
     task = spec.task_spec()
-    suite = spec.load_suite()
     run_batch = spec.batch(suite)
-    packed, variant = run_batch.packed, run_batch.variant
-    if variant is not None:
-        print_fn(variant.summary())
+    check_dt_against_logs(spec.dt, run_batch.limited().meta)
+    if run_batch.variant is not None:
+        print_fn(run_batch.variant.summary())
     policy_kwargs = cfg.policy_kwargs or tuple({} for _ in cfg.policies)
     policy_names = cfg.policy_names or tuple("" for _ in cfg.policies)
     if not len(policy_kwargs) == len(policy_names) == len(cfg.policies):
         raise DriveE2EError("BenchConfig: policy_kwargs / policy_names need one entry per policy")
-    policies = [_named(load_policy(p, **kw), n) for p, kw, n in zip(cfg.policies, policy_kwargs, policy_names)]
+    policies, fingerprints = [], []
+    for p, kw, n in zip(cfg.policies, policy_kwargs, policy_names):
+        pol = load_policy(p, **kw)
+        fingerprints.append(policy_fingerprint(p, kw, remote_name=str(pol.name)))
+        policies.append(_named(pol, n))
     names = [p.name for p in policies]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise DriveE2EError(f"two policies are named {sorted(dup)[0]!r}; policy names must be unique in a run")
-    sim_cfg = spec.sim_config()
-    timing = spec.timing()
+    spec.sim_config(), spec.timing()  # their errors too, before anything is written
 
-    out = cfg.out or spec.default_out()
+    out = Path(cfg.out or spec.default_out())
     spec = spec.resolve(suite, run_batch)
-    run_info = spec.to_json()  # run.json
-    run, done = distributed.on_root(lambda: RunDir(out, run_info, force=cfg.force), lambda r: [n for n in names if r.done(n)])
-    shard = distributed.process_shard(run_info["num_scenarios"]) if multi else None
-    if multi and run_info["num_scenarios"] < distributed.process_count():
-        raise DriveE2EError(f"{run_info['num_scenarios']} scenarios for {distributed.process_count()} processes: "
-                            "use at most one process per scenario")
-    print_fn(f"suite {suite.name} v{suite.version}, split {cfg.split}: {run_info['num_scenarios']} scenarios -> {out}")
+    run_info = {**spec.to_json(),  # run.json: the spec + what resuming must also match
+                "fingerprint": {"suite_sha256": batch_sha256(run_batch.limited()),
+                                "drivee2e_version": package_version()}}
+    resumable = {n: None if is_remote_spec(p) else fp for n, p, fp in zip(names, cfg.policies, fingerprints)}
+    run, done = distributed.on_root(
+        lambda: RunDir(out, run_info, force=cfg.force, policies=resumable,
+                       provenance=run_provenance(out, cfg.suite, _jax_provenance())),
+        lambda r: [n for n in names if r.done(n)])
+    try:
+        _run_policies(cfg, spec, run, done, out, suite, run_batch, task, policies, fingerprints, policy_kwargs,
+                      multi, print_fn)
+        return {} if run is None else _write_outputs(run, policies, out, print_fn)  # process 0 writes
+    finally:
+        for pol in policies:  # host policies: release what they hold (a remote policy's connection)
+            if hostbridge.is_host(pol):
+                pol.close()
+        if run is not None:
+            run.close()
 
-    for pol, path, kwargs in zip(policies, cfg.policies, policy_kwargs):
+
+def _run_policies(cfg, spec, run, done, out, suite, run_batch, task, policies, fingerprints, policy_kwargs, multi,
+                  print_fn) -> None:
+    """``run_bench`` once the folder is open: roll out every policy not
+    ``done`` and save each (``run`` is None on processes other than 0)."""
+    packed = run_batch.packed
+    sim_cfg, timing = spec.sim_config(), spec.timing()
+    num = spec.num_scenarios
+    shard = distributed.process_shard(num) if multi else None
+    if multi and num < distributed.process_count():
+        raise DriveE2EError(f"{num} scenarios for {distributed.process_count()} processes: "
+                            "use at most one process per scenario")
+    print_fn(f"suite {suite.name} v{suite.version}, split {spec.split}: {num} scenarios -> {out}")
+
+    for pol, path, kwargs, fp in zip(policies, cfg.policies, policy_kwargs, fingerprints):
         if pol.name in done:
             if run is not None:
                 print_fn(f"[{pol.name}] already done in {run.policy_file(pol.name)} (resumed; --force to redo)")
             continue
+        if run is not None and is_remote_spec(path) and pol.name in run.files:
+            print_fn(f"[{pol.name}] remote policy: re-run (results of a remote policy are never resumed)")
         # All repetitions in one rollout (the batch tiled, keys as separate seeds would give).
         seeds = spec.repetition_seeds()
         label = pol.name if seeds is None else f"{pol.name} x{cfg.repetitions} reps"
@@ -157,23 +213,33 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
             f"[{label}] {len(res.rows)} episodes, {res.steps} steps: compile+first chunk {res.compile_s:.1f} s, "
             f"rollout {res.wall_s:.1f} s"
         )
-        extra = {"policy_path": str(path), **timing_info, "runs": [timing_info]}
+        warnings = [str(w) for w in getattr(res, "warnings", ()) or ()]
+        for w in warnings:
+            print_fn(f"[{pol.name}] warning: {w}")
         if run is not None:
+            extra = {"policy_path": str(path), **timing_info, "runs": [timing_info], "warnings": warnings,
+                     "required_sensors": [str(s) for s in getattr(pol, "required_sensors", ())],
+                     "provenance": policy_provenance(path, kwargs, fp, out)}
             run.save_policy(pol.name, res.rows, events, {**extra, "policy_kwargs": kwargs} if kwargs else extra)
-    for pol in policies:  # host policies: release what they hold (a remote policy's connection)
-        if hostbridge.is_host(pol):
-            pol.close()
 
-    if run is None:  # not process 0: process 0 writes the results
-        return {}
-    policy_data = {n: run.load_policy(n) for n in names}
-    rows_by_policy = {n: d["rows"] for n, d in policy_data.items()}
-    for pol in policies:  # leaderboard/<policy>.json: a CARLA LB 2.0 / Bench2Drive results.json per agent
-        d = policy_data[pol.name]
-        write_leaderboard_results(out / "leaderboard" / run.policy_file(pol.name).name, d["rows"], d["events"],
-                                  run_info, pol)
-    summary = summarize(rows_by_policy, run_info)
-    run.write_tables(names, summary, ep.COUNT_COLUMNS)
+
+def _write_outputs(run: RunDir, policies, out: Path, print_fn) -> dict:
+    """Leaderboard files, tables, report and console tables of EVERY finished
+    policy file in the folder (this run's policies first). Returns the summary."""
+    run_info = run.info
+    names = [p.name for p in policies]
+    order = run.finished(names)  # every policy file of the folder: this run's first
+    policy_data = {n: run.load_policy(n) for n in order}
+    by_name = {p.name: p for p in policies}
+    for n in order:  # leaderboard/<policy>.json: a CARLA LB 2.0 / Bench2Drive results.json per agent
+        d = policy_data[n]
+        pol = by_name.get(n) or SimpleNamespace(name=n, required_sensors=tuple(d.get("required_sensors") or ()))
+        write_leaderboard_results(out / "leaderboard" / run.policy_file(n).name, d["rows"], d["events"], run_info, pol)
+    summary = summarize({n: d["rows"] for n, d in policy_data.items()}, run_info)
+    run.write_tables(order, summary, ep.COUNT_COLUMNS)
+    others = [n for n in order if n not in by_name]
+    if others:
+        print_fn(f"the tables also list {len(others)} policies finished earlier in {out}: {', '.join(others)}")
     print_fn("")
     print_fn(format_tables(summary))
 
@@ -181,6 +247,17 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     print_fn(f"\nper-scenario results: {out / 'scenarios.csv'}, summary: {out / 'summary.json'}, report: {report}, "
              f"leaderboard / Bench2Drive results.json: {out / 'leaderboard'}/<policy>.json")
     return summary
+
+
+def _jax_provenance() -> dict:
+    """JAX's part of run.json's provenance: versions, backend, device kinds."""
+    try:
+        jaxlib_version = importlib.metadata.version("jaxlib")
+    except importlib.metadata.PackageNotFoundError:
+        jaxlib_version = "unknown"
+    return {"jax_version": jax.__version__, "jaxlib_version": jaxlib_version, "backend": jax.default_backend(),
+            "device_kinds": sorted({str(d.device_kind) for d in jax.devices()}),
+            "process_count": jax.process_count()}
 
 
 def _silent(_line: str) -> None:

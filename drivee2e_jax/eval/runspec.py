@@ -27,7 +27,9 @@ spec read from ``run.json`` is resolved, with ``limit = num_scenarios``.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -40,10 +42,104 @@ from drivee2e_jax.metrics.driving_score import score_preset
 from drivee2e_jax.observe.vector import ObsConfig
 from drivee2e_jax.rollout import ControlTiming
 from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.scenario.flat import flatten_scenario
 from drivee2e_jax.sim import SimConfig
 
 #: The results folder's file holding the spec.
 RUN_JSON = "run.json"
+#: Largest simulation step, s. One tick moves the ego up to ``speed * dt``
+#: between two contact / red-light / lane checks (``infractions`` checks the
+#: poses at the ticks only): at 1 s and 10 m/s that is 10 m, over twice a car
+#: length, so larger steps silently miss collisions (and ``--dt 1e6`` would run
+#: zero steps). The data-dependent bound, dt <= the log step, is
+#: ``check_dt_against_logs``.
+MAX_DT = 1.0
+#: PRNG seeds are 32-bit: ``jax.random.PRNGKey(2**32)`` equals ``PRNGKey(0)``.
+SEED_LIMIT = 2**32
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
+
+
+def check_settings(spec: RunSpec) -> None:
+    """DriveE2EError (one line naming the flag) for a setting no run can use:
+    dt not a finite number in (0, ``MAX_DT``] s, control_every < 1,
+    latency < 0, a seed outside [0, 2**32 - repetitions], repetitions or
+    limit < 1, negative or non-finite observation noise."""
+    dt = spec.dt
+    if isinstance(dt, bool) or not isinstance(dt, int | float | np.number) or not math.isfinite(dt) or not (
+            0 < dt <= MAX_DT):
+        raise DriveE2EError(f"--dt must be a finite number of seconds in (0, {MAX_DT:g}], got {dt!r}")
+    if not _is_int(spec.control_every) or spec.control_every < 1:
+        raise DriveE2EError(f"--control-every must be an integer >= 1 (sim steps), got {spec.control_every!r}")
+    if not _is_int(spec.latency) or spec.latency < 0:
+        raise DriveE2EError(f"--latency must be an integer >= 0 (sim steps), got {spec.latency!r}")
+    if not _is_int(spec.repetitions) or spec.repetitions < 1:
+        raise DriveE2EError(f"--repetitions must be >= 1, got {spec.repetitions!r}")
+    if spec.limit is not None and (not _is_int(spec.limit) or spec.limit < 1):
+        raise DriveE2EError(f"--limit must be >= 1, got {spec.limit!r}")
+    if not _is_int(spec.seed) or not 0 <= spec.seed <= SEED_LIMIT - spec.repetitions:
+        raise DriveE2EError(f"--seed must be an integer in [0, {SEED_LIMIT - spec.repetitions}] (32-bit PRNG seeds, "
+                            f"one per repetition), got {spec.seed!r}")
+    for flag, v in (("--gps-noise-std", spec.gps_noise_std), ("--compass-noise-std", spec.compass_noise_std)):
+        if isinstance(v, bool) or not isinstance(v, int | float | np.number) or not (math.isfinite(v) and v >= 0):
+            raise DriveE2EError(f"{flag} must be a finite number >= 0, got {v!r}")
+
+
+def check_dt_against_logs(dt: float, meta) -> None:
+    """DriveE2EError when ``dt`` exceeds the log step of a scenario in
+    ``meta`` (``SuiteMeta``; its ``dt`` column, s): replay interpolates
+    between log samples, and a longer tick would step over logged samples
+    unchecked (an agent crossing the ego between two ticks is never seen)."""
+    if len(meta) == 0:
+        return
+    i = int(np.argmin(meta.dt))
+    if dt > float(meta.dt[i]) * (1 + 1e-6):
+        raise DriveE2EError(f"--dt {dt:g} exceeds the log step {float(meta.dt[i]):g} s of scenario "
+                            f"{meta.scenario_id[i]!s} (ticks would skip logged samples); use --dt <= {float(meta.dt[i]):g}")
+
+
+def pick_split(splits: dict[str, int], suite_name: str = "suite") -> tuple[str, str]:
+    """The split to run when none is given, and a line saying why.
+
+    ``splits``: the non-empty splits (``Suite.splits``: name -> count).
+    ``val`` when it has scenarios, else the only non-empty split; otherwise
+    DriveE2EError listing the splits."""
+    listed = ", ".join(f"{s} ({n})" for s, n in splits.items()) or "none"
+    if splits.get("val"):
+        return "val", f"split val ({splits['val']} scenarios; --split picks another)"
+    full = [s for s, n in splits.items() if n]
+    if len(full) == 1:
+        return full[0], f"split {full[0]}: the only non-empty split of {suite_name} (no --split given)"
+    raise DriveE2EError(f"--split: {suite_name} has no val split; name one of: {listed}")
+
+
+def batch_sha256(packed) -> str:
+    """Hex sha256 of a packed batch (``scenario.pack.PackedBatch``): every
+    array leaf of its ``Scenario`` (name, dtype, shape, bytes) and every meta
+    column. This is the suite fingerprint of a run: it covers exactly what is
+    evaluated (split, task filter, limit and variant applied), whether the
+    suite is a folder or generated, and ignores paths and mtimes. Adding a
+    scenario that changes the suite-wide padded sizes changes it too (a
+    conservative miss)."""
+    h = hashlib.sha256()
+    for name, leaf in sorted(flatten_scenario(packed.scenario).items()):
+        _hash_array(h, f"scenario.{name}", leaf)
+    for name, col in sorted(packed.meta.columns().items()):
+        _hash_array(h, f"meta.{name}", col)
+    return h.hexdigest()
+
+
+def _hash_array(h, name: str, value) -> None:
+    a = np.ascontiguousarray(np.asarray(value))
+    if a.dtype.kind in "OUS":  # text columns: their values, not object pointers
+        a = np.asarray([str(v) for v in a.ravel()]).reshape(a.shape)
+        data = "\0".join(a.ravel().tolist()).encode()
+    else:
+        data = a.tobytes()
+    h.update(f"{name}:{a.dtype.str}:{a.shape}:{len(data)}\n".encode())
+    h.update(data)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,10 +212,7 @@ class RunSpec:
     variant_removed: tuple[tuple[str, tuple[int, int]], ...] | None = None
 
     def __post_init__(self):
-        if self.limit is not None and self.limit < 1:
-            raise DriveE2EError(f"--limit must be >= 1, got {self.limit}")
-        if self.repetitions < 1:
-            raise DriveE2EError(f"--repetitions must be >= 1, got {self.repetitions}")
+        check_settings(self)
         get_task(self.task)
         check_variant(self.variant)
 

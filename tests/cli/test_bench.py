@@ -3,11 +3,19 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
+import shutil
+import subprocess
+import sys
 
 import pytest
 
 from drivee2e_jax.cli import main
+from drivee2e_jax.eval import bench as bench_mod
+from drivee2e_jax.eval.runspec import RunSpec
+from drivee2e_jax.files import sha256_file
+from drivee2e_jax.policy import resolve_policy_path
 from drivee2e_jax.records import SuiteRecord
 from drivee2e_jax.scenario.schema import write_suite
 from tests.helpers import sim_scenarios as ss
@@ -47,13 +55,145 @@ def test_bench_writes_tables_and_resumes(suite_dir, tmp_path, capsys, monkeypatc
     assert lr["num_scenarios"] == 3 and lr["success_rate"] == pytest.approx(100 / 3, abs=1e-3)
     assert summary["policies"]["stop"]["overall"]["success_rate"] == 0.0
 
-    # Resume: both policies are skipped, files stay identical.
+    # Provenance: the zoo policy by name with its file's sha256; versions, devices, command.
+    info = json.loads((out / "run.json").read_text())
+    assert set(info["fingerprint"]) == {"suite_sha256", "drivee2e_version"}
+    assert {"drivee2e_version", "jax_version", "jaxlib_version", "backend", "device_kinds", "time_utc",
+            "command"} <= set(info["provenance"])
+    assert RunSpec.load(out).to_json() == {k: v for k, v in info.items() if k not in ("fingerprint", "provenance")}
+    pol = json.loads((out / "policies" / "log_replay.json").read_text())
+    assert pol["provenance"]["policy"] == "log_replay" and pol["warnings"] == []
+    assert pol["provenance"]["policy_sha256"] == sha256_file(resolve_policy_path("log_replay"))
+
+    # Resume: both policies are skipped, files stay identical; temp files of a killed run are removed.
     before = (out / "scenarios.csv").read_text()
     stamp = (out / "policies" / "log_replay.json").stat().st_mtime_ns
+    stray = [out / "policies" / ".stop.json.x1y2z3w4.tmp", out / ".summary.json.a1b2c3d4.tmp"]
+    for f in stray:
+        f.write_text("{")
     assert _bench(suite_dir, out) == 0
     assert "already done" in capsys.readouterr().out
     assert (out / "policies" / "log_replay.json").stat().st_mtime_ns == stamp
     assert (out / "scenarios.csv").read_text() == before
+    assert not any(f.exists() for f in stray)
+
+    # A rerun naming a subset of the policies keeps the others in every table (this run's first).
+    assert main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress", "--policy", "stop"]) == 0
+    assert "also list 1 policies finished earlier" in capsys.readouterr().out
+    rows = list(csv.DictReader((out / "scenarios.csv").open()))
+    assert [r["policy"] for r in rows] == ["stop"] * 3 + ["log_replay"] * 3
+    assert list(json.loads((out / "summary.json").read_text())["policies"]) == ["stop", "log_replay"]
+    assert sorted(p.name for p in (out / "leaderboard").glob("*.json")) == ["log_replay.json", "stop.json"]
+    assert "log_replay" in (out / "report.md").read_text()
+
+
+#: Holds a results folder's lock, as a `drivee2e bench` running elsewhere would.
+HOLDER = """
+import sys, time
+from drivee2e_jax.files import lock_folder
+with lock_folder(sys.argv[1], command="drivee2e bench --policy expert --out RUN"):
+    print("locked", flush=True)
+    time.sleep(60)
+"""
+
+
+def test_a_second_run_of_a_busy_folder_stops_naming_the_first(suite_dir, tmp_path, capsys, monkeypatch):
+    """Two benches with one --out at once both exited 0 with the last one's tables: now the second stops."""
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "locked"
+        assert _bench(suite_dir, out, "--limit", "1") == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"in use by another run (pid {proc.pid} on " in err[0]
+        assert "drivee2e bench --policy expert --out RUN" in err[0] and "another --out" in err[0]
+        assert [p.name for p in out.iterdir()] == [".lock"]  # the refused run wrote nothing
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_changed_suite_policy_or_a_corrupt_file_is_never_resumed(suite_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    suite = shutil.copytree(suite_dir, tmp_path / "suite")
+    pol = tmp_path / "stop.py"
+    pol.write_text(resolve_policy_path("stop").read_text())
+    out = tmp_path / "run"
+
+    def bench(*extra):
+        code = main(["bench", "--suite", str(suite), "--out", str(out), "--no-progress", "--limit", "1",
+                     "--policy", str(pol), *extra])
+        got = capsys.readouterr()
+        return code, got.err.strip().splitlines() or got.out
+
+    assert bench()[0] == 0
+    pol.write_text(pol.read_text() + "# tuned\n")
+    code, err = bench()
+    assert code == 2 and len(err) == 1 and err[0].startswith("drivee2e: error: [stop] ")
+    assert "(changed: the policy file's content)" in err[0] and "--force" in err[0]
+    pol.write_text(resolve_policy_path("stop").read_text())
+
+    first = json.loads((out / "policies" / "stop.json").read_text())["rows"][0]["scenario_id"]
+    scn = suite / "scenarios" / f"{first}.json"  # the scenario --limit 1 evaluates
+    original = scn.read_text()
+    data = json.loads(original)
+    data["tracks"][0]["size"][0] += 0.5  # one agent's length
+    scn.write_text(json.dumps(data))
+    code, err = bench()
+    assert code == 2 and len(err) == 1 and "differs in fingerprint.suite_sha256" in err[0] and "--force" in err[0]
+    scn.write_text(original)  # same content again (new mtime): resumes
+    code, printed = bench()
+    assert code == 0 and "already done" in printed
+
+    f = out / "policies" / "stop.json"
+    f.write_text(f.read_text()[:100])  # truncated
+    code, err = bench()
+    assert code == 2 and err == [f"drivee2e: error: {f} is corrupt (" + err[0].split(" is corrupt (", 1)[1]]
+    assert err[0].endswith("delete it or use --force")
+    assert bench("--force")[0] == 0 and json.loads(f.read_text())["policy"] == "stop"
+
+
+def test_a_run_failing_before_any_policy_finished_leaves_no_folder(suite_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    bad = tmp_path / "bad.py"
+    bad.write_text("from drivee2e_jax.errors import DriveE2EError\n"
+                   "from drivee2e_jax.policy import StatelessPolicy\n"
+                   "class P(StatelessPolicy):\n"
+                   "    name = 'bad'\n"
+                   "    def init(self, key, obs):\n"
+                   "        raise DriveE2EError('bad.py: no weights')\n"
+                   "policy = P()\n")
+    out = tmp_path / "run"
+    assert main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress", "--policy", str(bad)]) == 2
+    assert "no weights" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_a_single_split_suite_is_picked_and_warnings_are_kept(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    maps = {m.map_id: m for m in (ss.road_map(),)}
+    train = write_suite(SuiteRecord("tr", "1", maps, [dataclasses.replace(ss.clean(), split="train")]), tmp_path / "tr")
+
+    real = bench_mod.evaluate
+
+    def evaluate_warning(*args, **kwargs):
+        return dataclasses.replace(real(*args, **kwargs), warnings=["all actions were NaN"])
+
+    monkeypatch.setattr(bench_mod, "evaluate", evaluate_warning)
+    out = tmp_path / "run"
+    assert main(["bench", "--suite", str(train), "--out", str(out), "--no-progress", "--policy", "stop"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert "split train: the only non-empty split of suite tr (no --split given)" in printed
+    assert "[stop] warning: all actions were NaN" in printed
+    assert json.loads((out / "policies" / "stop.json").read_text())["warnings"] == ["all actions were NaN"]
+    assert json.loads((out / "run.json").read_text())["split"] == "train"
+
+    scns = [dataclasses.replace(ss.clean(), split="train"), dataclasses.replace(ss.red_light(), split="test")]
+    two = write_suite(SuiteRecord("two", "1", maps, scns), tmp_path / "two")
+    assert main(["bench", "--suite", str(two), "--out", str(tmp_path / "o2"), "--no-progress", "--policy", "stop"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["drivee2e: error: --split: suite two has no val split; name one of: train (1), test (1)"]
 
 
 def test_bench_refuses_a_different_run_without_force(suite_dir, tmp_path, capsys, monkeypatch):
@@ -71,16 +211,25 @@ def test_bench_refuses_a_different_run_without_force(suite_dir, tmp_path, capsys
     "args, needle",
     [
         (["--policy", "no/such/policy.py"], "policy file not found"),
-        (["--policy", "nonsense"], "not a file and not a reference policy"),
-        (["--split", "train"], "split"),
-        (["--control-every", "0"], "control_every"),
+        (["--policy", "nonsense"], "not a file and not a policy of the zoo"),
+        (["--split", "train"], "split 'train' of suite 'road3' is empty"),
+        (["--control-every", "0"], "--control-every must be"),
+        (["--dt", "inf"], "--dt must be a finite number"),
+        (["--dt", "nan"], "--dt must be a finite number"),
+        (["--dt", "1e6"], "--dt must be a finite number of seconds in (0, 1]"),
+        (["--dt", "0"], "--dt must be"),
+        (["--dt", "-1"], "--dt must be"),
+        (["--dt", "0.2"], "--dt 0.2 exceeds the log step 0.1 s"),
+        (["--seed", "-1"], "--seed must be"),
+        (["--latency", "-2"], "--latency must be"),
     ],
 )
-def test_bench_bad_input_is_one_line(suite_dir, tmp_path, capsys, monkeypatch, args, needle):
+def test_bench_bad_input_is_one_line_and_writes_nothing(suite_dir, tmp_path, capsys, monkeypatch, args, needle):
     monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
     rc = main(["bench", "--suite", str(suite_dir), "--out", str(tmp_path / "o"), "--no-progress", *args])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and needle in err[0] and "Traceback" not in err[0]
+    assert not (tmp_path / "o").exists()
 
 
 def test_policy_file_without_policy(tmp_path, capsys, suite_dir, monkeypatch):

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.bench import BenchConfig
 from drivee2e_jax.eval.results import RunDir
-from drivee2e_jax.eval.runspec import RunSpec
+from drivee2e_jax.eval.runspec import RunSpec, batch_sha256, check_dt_against_logs, pick_split
 from drivee2e_jax.eval.tasks import TASKS
 from drivee2e_jax.eval.variants import VARIANTS
 from drivee2e_jax.metrics.driving_score import SCORE_PRESETS
@@ -29,7 +29,7 @@ OLD_RUN_JSON = {
 }
 BASE_KEYS = list(OLD_RUN_JSON)
 
-finite = st.floats(0.001, 10.0, allow_nan=False, allow_infinity=False)
+finite = st.floats(0.001, 1.0, allow_nan=False, allow_infinity=False)
 specs = st.builds(
     RunSpec,
     suite=st.sampled_from(["twin15", "suites/road3", "x"]),
@@ -154,9 +154,10 @@ def test_batch_and_resolve_on_a_suite(suite_dir):
     assert RunSpec(task="lane_following", variant="visible_all").default_out().as_posix() == "results/twin15-val-lane_following-visible_all"
 
 
-def test_a_run_json_written_before_runspec_resumes(suite_dir, tmp_path):
-    """RunDir compares the stored dict with the new run's: the spec of the same
-    flags must write exactly what bench wrote before."""
+def test_a_run_json_without_fingerprints_is_refused_as_older(suite_dir, tmp_path):
+    """A run.json written before fingerprints: the spec of the same flags still
+    writes exactly what bench wrote, but RunDir refuses to resume it (its
+    results cannot be checked against this run) until --force."""
     old = {"suite": str(suite_dir), "suite_version": "1", "split": "val", "num_scenarios": 3, "preset": "paper",
            "dt": 0.1, "control_every": 1, "latency": 0, "seed": 0, "open_loop": False, "task": "route_navigation",
            "repetitions": 1}
@@ -165,8 +166,61 @@ def test_a_run_json_written_before_runspec_resumes(suite_dir, tmp_path):
     (out / "run.json").write_text(json.dumps(old, indent=2))
     spec = BenchConfig(suite=str(suite_dir), split="val").run_spec()
     suite = spec.load_suite()
-    spec = spec.resolve(suite, spec.batch(suite))
+    rb = spec.batch(suite)
+    spec = spec.resolve(suite, rb)
     assert spec.to_json() == old
-    RunDir(out, spec.to_json())  # no "different run" error
+    info = {**spec.to_json(), "fingerprint": {"suite_sha256": batch_sha256(rb.limited()), "drivee2e_version": "x"}}
+    with pytest.raises(DriveE2EError, match="written by an older drivee2e version"):
+        RunDir(out, info)
+    RunDir(out, info, force=True).close()
+    RunDir(out, info).close()  # now it has fingerprints
     with pytest.raises(DriveE2EError, match="differs in seed"):
-        RunDir(out, dataclasses.replace(spec, seed=1).to_json())
+        RunDir(out, {**info, **dataclasses.replace(spec, seed=1).to_json()})
+
+
+@pytest.mark.parametrize("kwargs, flag", [
+    ({"dt": float("inf")}, "--dt"), ({"dt": float("nan")}, "--dt"), ({"dt": 1e6}, "--dt"), ({"dt": 0.0}, "--dt"),
+    ({"dt": -1.0}, "--dt"), ({"dt": True}, "--dt"), ({"control_every": 0}, "--control-every"),
+    ({"control_every": 1.5}, "--control-every"), ({"latency": -1}, "--latency"), ({"seed": -1}, "--seed"),
+    ({"seed": 2**32}, "--seed"), ({"seed": 2**32 - 2, "repetitions": 3}, "--seed"), ({"limit": 0}, "--limit"),
+    ({"repetitions": 0}, "--repetitions"), ({"gps_noise_std": float("nan")}, "--gps-noise-std"),
+    ({"compass_noise_std": -0.1}, "--compass-noise-std"),
+])
+def test_every_setting_is_checked_with_one_line_naming_its_flag(kwargs, flag):
+    with pytest.raises(DriveE2EError) as e:
+        RunSpec(**kwargs)
+    assert str(e.value).startswith(f"{flag} must be") and "\n" not in str(e.value)
+
+
+def test_settings_at_their_bounds_are_accepted():
+    RunSpec(dt=1.0, seed=2**32 - 3, repetitions=3, latency=0, control_every=1, limit=1)
+
+
+def test_dt_may_not_exceed_the_log_step(suite_dir):
+    meta = RunSpec(suite=str(suite_dir)).load_suite().meta
+    check_dt_against_logs(0.1, meta)  # the log step itself
+    check_dt_against_logs(0.05, meta)
+    with pytest.raises(DriveE2EError, match=r"--dt 0.2 exceeds the log step 0.1 s of scenario \w+"):
+        check_dt_against_logs(0.2, meta)
+
+
+def test_pick_split_prefers_val_then_the_only_non_empty_one():
+    assert pick_split({"train": 5, "val": 2})[0] == "val"
+    split, note = pick_split({"test": 4}, "suite s")
+    assert split == "test" and "only non-empty split" in note
+    with pytest.raises(DriveE2EError, match=r"--split: suite s has no val split; name one of: train \(3\), test \(2\)"):
+        pick_split({"train": 3, "test": 2}, "suite s")
+
+
+def test_the_suite_fingerprint_covers_the_evaluated_arrays(suite_dir):
+    spec = RunSpec(suite=str(suite_dir))
+    rb = spec.batch(spec.load_suite())
+    h = batch_sha256(rb.limited())
+    assert batch_sha256(spec.batch(spec.load_suite()).limited()) == h  # deterministic
+    two = dataclasses.replace(spec, limit=2)
+    assert batch_sha256(two.batch(two.load_suite()).limited()) != h
+    packed = rb.limited()
+    xy = np.array(packed.scenario.tracks.xy)
+    xy[0, 0, 0, 0] += 0.01
+    moved = dataclasses.replace(packed, scenario=packed.scenario.replace(tracks=packed.scenario.tracks.replace(xy=xy)))
+    assert batch_sha256(moved) != h
