@@ -33,6 +33,7 @@ import numpy as np
 
 from drivee2e_jax import hostapi
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.policy import raised_text
 from drivee2e_jax.types import Controls, Waypoints
 
 #: Top-level observation fields (``types.Observation``; the host containers mirror them).
@@ -79,8 +80,10 @@ class HostBridge:
         self.failure = None
         try:
             self.state = self.host.reset(list(meta_rows))
+        except DriveE2EError:
+            raise
         except Exception as e:  # a user's policy: one line, not a traceback
-            raise DriveE2EError(f"{self.source}: reset failed: {type(e).__name__}: {e}") from e
+            raise DriveE2EError(f"{self.source}: reset(meta) {raised_text(e, self.source)}") from e
 
     def _host_act(self, obs) -> Controls | Waypoints:
         """The callback: (B, ...) numpy observation -> (B, ...) numpy action."""
@@ -96,14 +99,20 @@ class HostBridge:
             except DriveE2EError as e:
                 self.failure = e.message
             except Exception as e:  # noqa: BLE001 - any error of a user's policy becomes one line
-                self.failure = f"{where}: act raised {type(e).__name__}: {e}"
+                self.failure = f"{where}: act {raised_text(e, self.source)}"
         return _brake(self.action_type, b, self.num_waypoints)
 
     def probe_num_waypoints(self, obs_batch) -> int:
         """K of a waypoint policy that did not declare ``num_waypoints``: one
         ``act`` on a throwaway state (``reset`` again afterwards)."""
         where = f"{self.source}, probing the number of waypoints"
-        result = hostapi.check_act_result(self.host.act(hostapi.from_fields(obs_batch), self.state), where)
+        try:
+            out = self.host.act(hostapi.from_fields(obs_batch), self.state)
+        except DriveE2EError:
+            raise
+        except Exception as e:  # a user's policy: one line, not a traceback
+            raise DriveE2EError(f"{where}: act {raised_text(e, self.source)}") from e
+        result = hostapi.check_act_result(out, where)
         action = hostapi.check_action(result[0], "waypoints", int(np.shape(obs_batch.ego)[0]), where)
         return int(action.xy.shape[1])
 

@@ -19,6 +19,8 @@ A policy file (``--policy path/to/file.py``) defines either a module-level
 from __future__ import annotations
 
 import json
+import sys
+import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
@@ -101,7 +103,56 @@ def load_policy(path: str | Path, **kwargs) -> Policy | HostPolicy:
         raise DriveE2EError(f"{path}: policy object lacks {', '.join(missing)} (see drivee2e_jax.policy.Policy)")
     if pol.action_type not in ("controls", "waypoints"):
         raise DriveE2EError(f"{path}: action_type is {pol.action_type!r}, expected 'controls' or 'waypoints'")
+    if getattr(pol, "source", None) is None:
+        try:  # what error messages name (evaluate's policy check, hostbridge)
+            pol.source = str(path)
+        except (AttributeError, TypeError):  # a frozen object: messages fall back to its name
+            pass
     return pol
+
+
+def user_frame(exc: BaseException, source: str | Path | None = None) -> str:
+    """``"file:line"`` where ``exc`` left the policy's code: the last frame of
+    its traceback in the policy file ``source``, else the last frame outside
+    installed packages, the standard library and drivee2e_jax's own machinery
+    (its ``zoo/`` and ``models/`` count as policy code); "" when none."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    want = _resolved(source) if source else None
+    mine = [f for f in frames if want is not None and _resolved(f.filename) == want]
+    mine = mine or [f for f in frames if not _is_library(f.filename)]
+    return f"{mine[-1].filename}:{mine[-1].lineno}" if mine else ""
+
+
+def raised_text(exc: BaseException, source: str | Path | None = None, limit: int = 200) -> str:
+    """``raised Type: message at file:line`` on one line: the message cut at
+    ``limit`` characters, the place from :func:`user_frame` (when found)."""
+    text = " ".join(str(exc).split())
+    if len(text) > limit:
+        text = text[:limit - 3] + "..."
+    frame = user_frame(exc, source)
+    return f"raised {type(exc).__name__}" + (f": {text}" if text else "") + (f" at {frame}" if frame else "")
+
+
+def _resolved(path: str | Path) -> Path | None:
+    try:
+        return Path(path).resolve()
+    except (OSError, ValueError):
+        return None
+
+
+def _is_library(filename: str) -> bool:
+    """Whether a traceback frame's file is library code rather than a policy's."""
+    path = _resolved(filename)
+    if path is None or filename.startswith("<"):
+        return True
+    if {"site-packages", "dist-packages"} & set(path.parts):
+        return True
+    for prefix in {sys.base_prefix, sys.prefix, sys.exec_prefix}:
+        stdlib = Path(prefix).resolve() / "lib"
+        if path.is_relative_to(stdlib):
+            return True
+    package = Path(__file__).resolve().parent
+    return path.is_relative_to(package) and not any(path.is_relative_to(package / d) for d in ("zoo", "models"))
 
 
 def parse_policy_spec(spec: str) -> tuple[Path | str, dict, str]:

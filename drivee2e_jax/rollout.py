@@ -51,13 +51,18 @@ class ControlTiming:
 
 @struct.dataclass
 class Carry:
-    """Rollout carry for one scenario."""
+    """Rollout carry for one scenario.
+
+    ``nonfinite``: () int32 steps of the running episode whose applied action
+    held a NaN / inf (the simulator repairs those: ``sim.Simulator.to_controls``).
+    """
 
     sim: SimState
     policy_state: Any
     held: Any  # the action currently applied
     queue: Any  # (latency, ...) actions waiting to take effect
     key: jnp.ndarray
+    nonfinite: jnp.ndarray
 
 
 def _brake_like(action):
@@ -68,6 +73,13 @@ def _brake_like(action):
     if isinstance(action, Waypoints):
         return Waypoints(xy=jnp.zeros_like(action.xy))
     return jax.tree_util.tree_map(jnp.zeros_like, action)
+
+
+def _all_finite(action) -> jnp.ndarray:
+    """() bool: every float leaf of ``action`` is finite."""
+    leaves = [jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(action)
+              if jnp.issubdtype(jnp.asarray(a).dtype, jnp.inexact)]
+    return jnp.all(jnp.stack(leaves)) if leaves else jnp.ones((), bool)
 
 
 class Rollout:
@@ -106,7 +118,8 @@ class Rollout:
         action, _ = jax.eval_shape(self.policy.act, params, obs, pstate, k_pol)
         neutral = _brake_like(action)
         queue = jax.tree_util.tree_map(lambda a: jnp.stack([a] * self.timing.latency), neutral) if self.timing.latency else None
-        return Carry(sim=sim_state, policy_state=pstate, held=neutral, queue=queue, key=key)
+        return Carry(sim=sim_state, policy_state=pstate, held=neutral, queue=queue, key=key,
+                     nonfinite=jnp.zeros((), jnp.int32))
 
     def _decide(self, scenario: Scenario, carry: Carry, assets, params, k_act):
         """(the policy's action, its new state) on the current observation."""
@@ -139,7 +152,8 @@ class Rollout:
             applied = proposed
             queue = None
         sim_state, _, log = self.sim.step(scenario, carry.sim, applied, assets, observe=False)
-        return Carry(sim=sim_state, policy_state=pstate, held=applied, queue=queue, key=key), log
+        nonfinite = carry.nonfinite + (log.active & ~_all_finite(applied)).astype(jnp.int32)
+        return Carry(sim=sim_state, policy_state=pstate, held=applied, queue=queue, key=key, nonfinite=nonfinite), log
 
     def _advance_one(self, scenario: Scenario, carry: Carry, assets, params):
         every = self.timing.control_every

@@ -7,6 +7,9 @@ that names the policy's file and what was expected. An empty report means
 conformant; ``report.summary`` then says what was found (action type and
 shapes, state leaves, sensors). ``check_policy_file(path)`` loads a policy
 file first; ``drivee2e check-policy FILE`` prints either.
+``checked_params`` / ``check_traceable`` are the cheap subset ``evaluate``
+runs before compiling a rollout (``jax.eval_shape`` of ``initial_state`` and
+``act`` on one observation): the first problem as one DriveE2EError line.
 
 What is checked:
 
@@ -50,16 +53,18 @@ from drivee2e_jax import hostapi
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.observe import registry
 from drivee2e_jax.observe.sensors import SensorConfig, assets_axes, build_assets
-from drivee2e_jax.policy import load_policy, parse_policy_spec
+from drivee2e_jax.policy import load_policy, parse_policy_spec, raised_text, user_frame
 from drivee2e_jax.remote import is_remote_spec
 from drivee2e_jax.scenario import Suite, load_suite
+from drivee2e_jax.scenario.suite import EXAMPLE_SUITES
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Controls, Waypoints
 
-__all__ = ["Problem", "Report", "check_policy", "check_policy_file", "DEFAULT_SUITE", "TINY_SUITE"]
+__all__ = ["Problem", "Report", "check_policy", "check_policy_file", "check_traceable", "checked_params",
+           "DEFAULT_SUITE", "TINY_SUITE"]
 
 #: ``suite="tiny"``: the repository's four-scenario example suite.
-TINY_SUITE = Path(__file__).resolve().parents[1] / "scenarios" / "examples" / "tiny"
+TINY_SUITE = EXAMPLE_SUITES["tiny"]
 DEFAULT_SUITE = "tiny"
 #: Observations per scenario, and simulator steps (along the log) between them.
 DEFAULT_STEPS = 3
@@ -164,6 +169,102 @@ def check_policy(policy: Any, *, source: str | None = None, suite: str | Path | 
         report.summary = (f"{name}: {kind}, {info['action']}, state: {info['state']}, "
                           f"sensors: {', '.join(required) or 'none'}; {what}")
     return report
+
+
+def checked_params(policy: Any, obs, key, params: Any = None, *, where: str = "on one observation") -> Any:
+    """A JAX policy's parameters, checked before a rollout is compiled.
+
+    ``init(key, obs)`` runs when ``params`` is None (eagerly, as ``evaluate``
+    always ran it), then :func:`check_traceable`. ``obs``: ONE scenario's
+    observation (no batch axis); ``where``: what the messages say it was.
+    Raises DriveE2EError with the first problem (one line naming the policy's
+    file) instead of a JAX traceback; returns the params.
+    """
+    if params is None:
+        try:
+            params = policy.init(key, obs)
+        except DriveE2EError:
+            raise
+        except Exception as e:  # noqa: BLE001 - a user's policy: one line
+            source = _source_of(policy)
+            raise DriveE2EError(f"{source}: init(key, obs) {raised_text(e, source)} ({where})") from e
+    report = check_traceable(policy, obs, params, key, where=where)
+    if report:
+        raise DriveE2EError(report[0].message)
+    return params
+
+
+def check_traceable(policy: Any, obs, params, key, *, source: str | None = None,
+                    where: str = "on one observation") -> Report:
+    """Trace ``initial_state(obs)`` and ``act(params, obs, state, key)`` once,
+    abstractly (``jax.eval_shape``: nothing runs on arrays, nothing compiles),
+    and check what the compiled rollout relies on: both trace (no Python
+    ``if`` on an array), ``params`` and the state are arrays, ``act`` returns
+    a pair whose action is the declared ``types.Controls`` / ``Waypoints``
+    (shapes, float32) and whose state keeps ``initial_state``'s structure,
+    shapes and dtypes. ``obs``: ONE scenario's observation (no batch axis).
+
+    Returns a :class:`Report` with at most one problem (the first found).
+    """
+    report = Report(str(source or _source_of(policy)))
+    where = f"traced {where}"
+    bad = next(((p, leaf) for p, leaf in _leaves(params) if _dtype(leaf) is None), None)
+    if bad is not None:
+        report.add("init", f"init(key, obs) returned params with {_describe(bad[1])} at {bad[0] or 'its root'}, "
+                           f"expected a pytree of arrays (the rollout passes params through jax.jit)")
+        return report
+    try:
+        state0 = _traced(policy.initial_state, obs)
+    except Exception as e:  # noqa: BLE001 - a user's policy: one line
+        report.add("initial_state", f"initial_state(obs) {_trace_failure(e, report.source)} ({where})")
+        return report
+    if not _state_leaves_ok(report, state0):
+        return report
+    try:
+        result = _traced(policy.act, params, obs, state0, key)
+    except Exception as e:  # noqa: BLE001
+        report.add("act", f"act(params, obs, state, key) {_trace_failure(e, report.source)} ({where})")
+        return report
+    _check_result(report, result, state0, policy.action_type, getattr(policy, "num_waypoints", None), where)
+    del report[1:]
+    return report
+
+
+def _traced(fn, *args):
+    """What ``fn(*args)`` returns under ``jax.eval_shape``: its arrays as
+    ``ShapeDtypeStruct``, anything else (a str, a hostapi container) as is."""
+    out = []
+
+    def run(*a):
+        out.append(jax.tree_util.tree_map(_abstract, fn(*a)))
+
+    jax.eval_shape(run, *args)
+    return out[0]
+
+
+def _abstract(x):
+    if isinstance(x, jax.Array | np.ndarray | np.generic):
+        return jax.ShapeDtypeStruct(np.shape(x), x.dtype)
+    return x
+
+
+def _source_of(policy: Any) -> str:
+    return str(getattr(policy, "source", None) or f"policy {getattr(policy, 'name', None)!r}")
+
+
+def _trace_failure(e: BaseException, source: str | None) -> str:
+    """What went wrong while tracing, with the policy's line: branching on a
+    traced value gets its fix, anything else is ``raised ...``."""
+    frame = user_frame(e, source)
+    at = f" at {frame}" if frame else ""
+    if isinstance(e, jax.errors.TracerBoolConversionError):
+        return f"branches on a traced value (Python if/while/bool on an array){at}; use jnp.where or jax.lax.cond"
+    if isinstance(e, jax.errors.ConcretizationTypeError | jax.errors.TracerIntegerConversionError):
+        return (f"uses a traced value where a concrete one is needed (int() / float(), a shape or a Python index "
+                f"computed from an array){at}; keep it an array (jnp.where, lax.dynamic_slice) and sizes fixed")
+    if isinstance(e, jax.errors.TracerArrayConversionError):
+        return f"converts a traced value to numpy{at}; use jax.numpy on arrays"
+    return raised_text(e, source)
 
 
 def check_policy_file(path: str | Path, *, policy_kwargs: Mapping | None = None, **kwargs) -> Report:
@@ -324,19 +425,15 @@ def _check_jax(policy, report: Report, probe: _Probe, key) -> dict | None:
     try:
         params = policy.init(k_init, obs0)
     except Exception as e:  # noqa: BLE001 - a user's policy: one line
-        report.add("init", f"init(key, obs) raised {_exc(e)}")
+        report.add("init", f"init(key, obs) {raised_text(e, report.source)}")
         return None
     try:
         state0 = policy.initial_state(obs0)
     except Exception as e:  # noqa: BLE001
-        report.add("initial_state", f"initial_state(obs) raised {_exc(e)}")
+        report.add("initial_state", f"initial_state(obs) {raised_text(e, report.source)}")
         return None
-    for path, leaf in _leaves(state0):
-        dt = _dtype(leaf)
-        if dt is None or dt.kind not in "biuf":
-            report.add("state", f"initial_state returned a state with {_describe(leaf)} at {path or 'its root'}, "
-                                f"expected arrays only (lax.scan carries the policy state)")
-            return None
+    if not _state_leaves_ok(report, state0):
+        return None
 
     # eager, scenario 0, along its log
     state, first, flagged = state0, None, False
@@ -345,16 +442,11 @@ def _check_jax(policy, report: Report, probe: _Probe, key) -> dict | None:
         try:
             result = policy.act(params, _row(probe.obs[t], 0), state, keys[t][0])
         except Exception as e:  # noqa: BLE001
-            report.add("act", f"act(params, obs, state, key) raised {_exc(e)} ({where})")
+            report.add("act", f"act(params, obs, state, key) {raised_text(e, report.source)} ({where})")
             return None
-        if not isinstance(result, tuple | list) or len(result) != 2:
-            report.add("act", f"act returned {_describe(result)} ({where}), expected a pair (action, policy_state)")
+        if not _check_result(report, result, state0, at, nw, where):
             return None
         action, new_state = result
-        if not _check_action(report, action, at, nw, where):
-            return None
-        if not _check_state(report, state0, new_state, where):
-            return None
         flagged = flagged or _flag_nonfinite(report, action, where)
         first = first or (action, new_state)
         state = new_state
@@ -376,7 +468,7 @@ def _check_jax(policy, report: Report, probe: _Probe, key) -> dict | None:
     try:
         j_out = jitted(params, obs0, state0, keys[0][0])
     except Exception as e:  # noqa: BLE001
-        report.add("jit", _trace_problem("jax.jit", e))
+        report.add("jit", _trace_problem("jax.jit", e, report.source))
         return None
     diff = _difference(first, tuple(j_out), same_call=False)
     if diff and not any(p.check == "determinism" for p in report):
@@ -393,7 +485,7 @@ def _check_jax(policy, report: Report, probe: _Probe, key) -> dict | None:
             actions, states = vact(params, probe.obs[t], states, keys[t])
             outs.append((actions, states))
     except Exception as e:  # noqa: BLE001
-        report.add("vmap", _trace_problem(f"jax.vmap over {b} scenarios", e))
+        report.add("vmap", _trace_problem(f"jax.vmap over {b} scenarios", e, report.source))
         return None
     for t, (actions, _) in enumerate(outs):
         for i in range(b):
@@ -469,6 +561,26 @@ def _check_action(report: Report, action, at: str, nw, where: str) -> bool:
     return ok
 
 
+def _check_result(report: Report, result, state0, at: str, nw, where: str) -> bool:
+    """Record what is wrong with ``act``'s return value (a pair, the declared
+    action, ``state0``'s structure); whether it is all right."""
+    if not isinstance(result, tuple | list) or len(result) != 2:
+        report.add("act", f"act returned {_describe(result)} ({where}), expected a pair (action, policy_state)")
+        return False
+    return _check_action(report, result[0], at, nw, where) and _check_state(report, state0, result[1], where)
+
+
+def _state_leaves_ok(report: Report, state0) -> bool:
+    """Record a policy state leaf that is no array (``lax.scan`` carries the state)."""
+    for path, leaf in _leaves(state0):
+        dt = _dtype(leaf)
+        if dt is None or dt.kind not in "biuf":
+            report.add("state", f"initial_state returned a state with {_describe(leaf)} at {path or 'its root'}, "
+                                f"expected arrays only (lax.scan carries the policy state)")
+            return False
+    return True
+
+
 def _check_state(report: Report, ref, new, where: str) -> bool:
     t_ref, t_new = jax.tree_util.tree_structure(ref), jax.tree_util.tree_structure(new)
     tail = "return the state with the same structure, shapes and dtypes (lax.scan carries it)"
@@ -484,14 +596,16 @@ def _check_state(report: Report, ref, new, where: str) -> bool:
     return True
 
 
-def _trace_problem(under: str, e: Exception) -> str:
+def _trace_problem(under: str, e: Exception, source: str | None = None) -> str:
     """One line for an act that fails when traced (the hint before the error text)."""
+    frame = user_frame(e, source)
+    at = f" at {frame}" if frame else ""
     if isinstance(e, jax.errors.ConcretizationTypeError | jax.errors.TracerIntegerConversionError):
-        return (f"act fails under {under}: Python control flow or conversion on a traced value; use jnp.where / "
-                f"lax.cond (lax.while_loop) instead of if / while / int() / float() on arrays ({_exc(e)})")
+        return (f"act fails under {under}: Python control flow or conversion on a traced value{at}; use jnp.where / "
+                f"lax.cond (lax.while_loop) instead of if / while / int() / float() on arrays ({_exc(e, 80)})")
     if isinstance(e, jax.errors.TracerArrayConversionError):
-        return f"act fails under {under}: it converts a traced value to numpy; use jax.numpy on arrays ({_exc(e)})"
-    return f"act raised under {under}: {_exc(e)}"
+        return f"act fails under {under}: it converts a traced value to numpy{at}; use jax.numpy on arrays ({_exc(e, 80)})"
+    return f"act raised under {under}: {_exc(e)}{at}"
 
 
 # --------------------------------------------------------------------------
@@ -507,7 +621,7 @@ def _check_host(policy, report: Report, probe: _Probe) -> dict | None:
         try:
             return True, policy.reset([dict(m) for m in probe.meta])
         except Exception as e:  # noqa: BLE001 - a user's policy: one line
-            report.add("reset", f"reset(meta) raised {_exc(e)} (a batch of {b} scenarios)")
+            report.add("reset", f"reset(meta) {raised_text(e, report.source)} (a batch of {b} scenarios)")
             return False, None
 
     def act(o, state, t):
@@ -515,7 +629,7 @@ def _check_host(policy, report: Report, probe: _Probe) -> dict | None:
         try:
             result = policy.act(o, state)
         except Exception as e:  # noqa: BLE001
-            report.add("act", f"act(obs, state) raised {_exc(e)} (step {t}, a batch of {b} scenarios)")
+            report.add("act", f"act(obs, state) {raised_text(e, report.source)} (step {t}, a batch of {b} scenarios)")
             return None
         try:
             action, new_state = hostapi.check_act_result(result, where)

@@ -5,11 +5,23 @@ from __future__ import annotations
 
 import textwrap
 
+import jax
+import numpy as np
 import pytest
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.policy import reference_policy_dir
-from drivee2e_jax.testing import TINY_SUITE, Problem, check_policy, check_policy_file
+from drivee2e_jax.eval.closedloop import device_batch, first_observation
+from drivee2e_jax.policy import load_policy, reference_policy_dir
+from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.sim import Simulator
+from drivee2e_jax.testing import (
+    TINY_SUITE,
+    Problem,
+    check_policy,
+    check_policy_file,
+    check_traceable,
+    checked_params,
+)
 
 #: Small and shared: every check below reuses one set of observations.
 SMALL = {"batch": 2, "steps": 2}
@@ -185,7 +197,7 @@ JAX_CASES = {
                 if obs.ego[0] > -1.0:
                     return Controls(throttle=z(), brake=z(), steer=z()), state
                 return Controls(throttle=z(), brake=z() + 1, steer=z()), state
-     """, "jit", "act fails under jax.jit: Python control flow or conversion on a traced value; use jnp.where / lax.cond"),
+     """, "jit", "act fails under jax.jit: Python control flow or conversion on a traced value at "),
     "state_forgotten": ("""\
         class P(Base):
             def initial_state(self, obs):
@@ -207,7 +219,7 @@ JAX_CASES = {
         class P(Base):
             def act(self, params, obs, state, key):
                 raise RuntimeError("boom")
-     """, "act", "act(params, obs, state, key) raised RuntimeError: boom (step 0, scenario"),
+     """, "act", "act(params, obs, state, key) raised RuntimeError: boom at "),
     "bad_attributes": ("""\
         class P(Base):
             name = ""
@@ -289,7 +301,7 @@ HOST_CASES = {
         class P(Base):
             def act(self, obs, state):
                 raise ValueError("no GPU")
-     """, "act", "act(obs, state) raised ValueError: no GPU (step 0"),
+     """, "act", "act(obs, state) raised ValueError: no GPU at "),
     "no_state": ("""\
         class P(Base):
             def act(self, obs, state):
@@ -324,3 +336,117 @@ def test_broken_host_policy_is_caught(tmp_path, case):
     _assert_one_line_naming(report, path)
     hits = [p for p in report if p.check == check and text in p.message]
     assert hits, [str(p) for p in report]
+
+
+# --------------------------------------------------------------------------
+# check_traceable / checked_params: evaluate's abstract check before compiling
+# --------------------------------------------------------------------------
+
+#: body, then the text of the one problem; "{at}" is "<file>:<line of the # HERE comment>".
+TRACE_CASES = {
+    "act_raises": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                raise ValueError("no lane ahead")  # HERE
+     """, "act(params, obs, state, key) raised ValueError: no lane ahead at {at} (traced on the probe)"),
+    "python_if": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                if obs.ego[0] > 1.0:  # HERE
+                    return Controls(throttle=z(), brake=z(), steer=z()), state
+                return Controls(throttle=z(), brake=z() + 1, steer=z()), state
+     """, "act(params, obs, state, key) branches on a traced value (Python if/while/bool on an array) at {at}; "
+          "use jnp.where or jax.lax.cond (traced on the probe)"),
+    "int_of_array": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                k = int(obs.ego[0])  # HERE
+                return Controls(throttle=z() + k, brake=z(), steer=z()), state
+     """, "act(params, obs, state, key) uses a traced value where a concrete one is needed (int() / float(), a "
+          "shape or a Python index computed from an array) at {at}"),
+    "dict_action": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return {"throttle": z(), "brake": z(), "steer": z()}, state
+     """, "act returned a dict with keys [brake, steer, throttle] as the action (traced on the probe), expected "
+          "drivee2e_jax.types.Controls(throttle, brake, steer) of float32 scalars"),
+    "wrong_shape": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=jnp.zeros((2,), jnp.float32), brake=z(), steer=z()), state
+     """, "action Controls.throttle has shape (2,) (traced on the probe), expected ()"),
+    "not_a_pair": ("""\
+        class P(Base):
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z())
+     """, "act returned a drivee2e_jax.types.Controls (traced on the probe), expected a pair (action, policy_state)"),
+    "state_forgotten": ("""\
+        class P(Base):
+            def initial_state(self, obs):
+                return {"n": jnp.zeros((), jnp.int32)}
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z()), None
+     """, "act changed the policy state's structure (traced on the probe): initial_state gave PyTreeDef({{'n': *}}), "
+          "act returned None"),
+    "state_other_structure": ("""\
+        class P(Base):
+            def initial_state(self, obs):
+                return {"n": jnp.zeros((), jnp.int32)}
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z()), (state["n"], state["n"])
+     """, "act returned PyTreeDef((*, *))"),
+    "initial_state_raises": ("""\
+        class P(Base):
+            def initial_state(self, obs):
+                raise KeyError("history")  # HERE
+     """, "initial_state(obs) raised KeyError: 'history' at {at} (traced on the probe)"),
+    "init_raises": ("""\
+        class P(Base):
+            def init(self, key, obs):
+                raise FileNotFoundError("weights.npz")  # HERE
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z()), state
+     """, "init(key, obs) raised FileNotFoundError: weights.npz at {at} (on the probe)"),
+    "params_not_arrays": ("""\
+        class P(Base):
+            def init(self, key, obs):
+                return {"w": jnp.ones(3), "note": "v2"}
+
+            def act(self, params, obs, state, key):
+                return Controls(throttle=z(), brake=z(), steer=z()), state
+     """, "init(key, obs) returned params with a str 'v2' at ['note'], expected a pytree of arrays"),
+}
+
+
+@pytest.fixture(scope="module")
+def probe_obs():
+    """One scenario's observation of the tiny suite (no batch axis)."""
+    batch, _ = device_batch(load_suite(str(TINY_SUITE)).pack(None), limit=1)
+    obs = first_observation(Simulator(), batch, jax.random.PRNGKey(0))
+    return jax.tree_util.tree_map(lambda a: a[0], obs), jax.random.PRNGKey(1)
+
+
+@pytest.mark.parametrize("case", list(TRACE_CASES))
+def test_checked_params_is_one_line_naming_file_and_line(tmp_path, probe_obs, case):
+    body, text = TRACE_CASES[case]
+    path = _write(tmp_path, JAX_HEADER, body)
+    lines = path.read_text().splitlines()
+    at = next((f"{path}:{i + 1}" for i, s in enumerate(lines) if s.endswith("# HERE")), None)
+    obs, key = probe_obs
+    with pytest.raises(DriveE2EError) as e:
+        checked_params(load_policy(path), obs, key, where="on the probe")
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: ") and "\n" not in msg and "Traceback" not in msg
+    assert text.format(at=at) in msg, msg
+
+
+def test_checked_params_passes_good_policies_and_keeps_given_params(probe_obs):
+    obs, key = probe_obs
+    for name in ("expert", "log_replay", "constant_velocity"):
+        pol = load_policy(reference_policy_dir() / f"{name}.py")
+        assert check_traceable(pol, obs, None, key).ok
+    given = {"w": np.ones(2, np.float32)}
+    assert checked_params(pol, obs, key, given) is given

@@ -102,8 +102,20 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as e:  # --help, --version, usage errors
         return e.code if isinstance(e.code, int) else (0 if e.code is None else common.EXIT_USAGE)
+    except KeyboardInterrupt:  # Ctrl-C while the subcommand's module imports
+        if debug:
+            raise
+        print(f"{common.PROG}: interrupted", file=sys.stderr)
+        return common.EXIT_INTERRUPTED
     args.debug = debug
+    return common.run(_with_compile_cache, args, debug=debug)
+
+
+def _with_compile_cache(args: argparse.Namespace) -> int | None:
+    """Run the subcommand with the persistent compile cache on (reruns, resumed
+    sweeps and trend checkpoints reuse compiled rollouts); inside ``common.run``
+    so that its errors are one line too."""
     from drivee2e_jax import compile_cache
 
-    compile_cache.enable()  # reruns, resumed sweeps and trend checkpoints reuse compiled rollouts
-    return common.run(args.func, args, debug=debug)
+    compile_cache.enable()
+    return args.func(args)

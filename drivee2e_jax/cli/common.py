@@ -8,14 +8,17 @@ the house style: description + example epilog, raw formatting) and sets
 and one broken module cannot break the others.
 
 Errors: :class:`DriveE2EError` and the other *expected* errors (missing or
-unreadable files) print one line ``drivee2e: error: <message>`` on stderr and
-exit 2; anything else is a bug and keeps its traceback. ``--debug`` (accepted
-anywhere on the command line) re-raises expected errors with their traceback.
+unreadable files, invalid JSON, out of memory) print one line ``drivee2e:
+error: <message>`` on stderr and exit 2; anything else is a bug: one line
+naming the exception plus "rerun with --debug for the traceback", exit 1.
+Ctrl-C prints ``drivee2e: interrupted`` and exits 130. ``--debug`` (accepted
+anywhere on the command line) re-raises every error with its traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import textwrap
 from collections.abc import Callable
@@ -36,7 +39,13 @@ EXPECTED_ERRORS: tuple[type[BaseException], ...] = (
     NotADirectoryError,
     IsADirectoryError,
     PermissionError,
+    OSError,  # disk full, too many open files, ...: the environment, not the code
+    json.JSONDecodeError,
+    UnicodeDecodeError,
+    MemoryError,
 )
+#: Longest message line printed for an unexpected error (a JAX error can run to pages).
+MAX_MESSAGE = 300
 
 
 def add_command(subparsers, name: str, *, help: str, description: str, epilog: str,
@@ -70,7 +79,27 @@ def error_message(exc: BaseException) -> str:
         return str(exc)
     if isinstance(exc, OSError) and exc.filename is not None:
         return f"{exc.filename}: {exc.strerror or exc}"
-    return " ".join(str(exc).split()) or type(exc).__name__
+    text = _one_line(exc)
+    if isinstance(exc, json.JSONDecodeError):
+        return f"invalid JSON: {text}"
+    if isinstance(exc, UnicodeDecodeError):
+        return f"a file is not UTF-8 text: {text}"
+    if isinstance(exc, MemoryError):
+        return f"out of memory{': ' + text if text else ''} (try fewer scenarios, e.g. --limit, or a smaller batch)"
+    return text or type(exc).__name__
+
+
+def unexpected_message(exc: BaseException) -> str:
+    """The one line for an unexpected error (a bug): its type, its message cut
+    at ``MAX_MESSAGE`` characters, and how to see the traceback."""
+    text = _one_line(exc)
+    if len(text) > MAX_MESSAGE:
+        text = text[:MAX_MESSAGE - 3] + "..."
+    return f"{type(exc).__name__}{': ' + text if text else ''} (unexpected; rerun with --debug for the traceback)"
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
 
 
 def print_error(message: str) -> None:
@@ -78,11 +107,18 @@ def print_error(message: str) -> None:
 
 
 def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace, *, debug: bool) -> int:
-    """Call a subcommand, turning expected errors into one line + exit code 2."""
+    """Call a subcommand: expected errors -> one line + exit 2, Ctrl-C -> exit
+    130, any other exception -> one line + exit 1 (``debug``: re-raised)."""
     try:
         code = func(args)
         sys.stdout.flush()
         return EXIT_OK if code is None else int(code)
+    except BrokenPipeError:  # e.g. `drivee2e suite info twin15 | head`
+        try:
+            sys.stdout = open("/dev/null", "w")  # noqa: SIM115 - silence the flush at exit
+        except OSError:
+            pass
+        return EXIT_OK
     except EXPECTED_ERRORS as e:
         if debug:
             raise
@@ -93,9 +129,8 @@ def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespa
             raise
         print(f"{PROG}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except BrokenPipeError:  # e.g. `drivee2e suite info twin15 | head`
-        try:
-            sys.stdout = open("/dev/null", "w")  # noqa: SIM115 - silence the flush at exit
-        except OSError:
-            pass
-        return EXIT_OK
+    except Exception as e:  # noqa: BLE001 - a bug: one line, the traceback behind --debug
+        if debug:
+            raise
+        print_error(unexpected_message(e))
+        return EXIT_PROBLEMS

@@ -16,11 +16,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from drivee2e_jax import hostbridge
+from drivee2e_jax import hostbridge, testing
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.results import event_key
+from drivee2e_jax.metrics import abilities, finegrained
 from drivee2e_jax.metrics import episode as ep
-from drivee2e_jax.metrics import finegrained
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.bev import bev_label
 from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, shard_rollout_inputs
@@ -38,6 +38,8 @@ class EvalResult:
       compile_s: seconds spent compiling (first call) .
       wall_s: seconds of the rollout after compilation.
       steps: simulated steps executed (max over the batch).
+      warnings: one line each about results that may be meaningless (episodes
+        with non-finite actions, maps without lanes); the CLI prints them.
     """
 
     rows: list[dict]
@@ -46,6 +48,7 @@ class EvalResult:
     compile_s: float
     wall_s: float
     steps: int
+    warnings: list[str] = dataclasses.field(default_factory=list)
 
 
 def evaluate(
@@ -92,6 +95,11 @@ def evaluate(
 
     Sensors: ``config.sensors`` plus every sensor the policy lists in
     ``required_sensors`` (``with_policy_sensors``).
+
+    Before anything compiles, a JAX policy is traced once on the first
+    scenario's observation (``checked_params``): a policy that raises, returns
+    the wrong action or state, or branches on a traced value is a one-line
+    DriveE2EError naming its file and line instead of a JAX traceback.
     """
     policy = hostbridge.wrap(policy)
     packed = suite.pack(split) if hasattr(suite, "pack") else suite
@@ -115,8 +123,7 @@ def evaluate(
     batch, meta = device_batch(packed)
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(seed)
-    if params is None:
-        params = init_params(policy, sim, batch, key, assets)
+    params = checked_params(policy, sim, batch, key, assets, params, str(meta.scenario_id[0]))
     if hostbridge.is_host(policy):  # one host call per step for the whole batch, on one device
         devices = devices or jax.local_devices()[:1]
         hostbridge.begin(policy, meta, batch, lambda: first_observation(sim, batch, key, assets))
@@ -153,7 +160,38 @@ def evaluate(
     per_scn = (compile_s + wall_s) / max(b, 1)
     reps = None if seeds is None else np.repeat(np.arange(len(seeds)), n_scn)
     rows, events = _rows_and_events(policy.name, meta, batch, results, stacked, sim.config, per_scn, limit_kmh, reps)
-    return EvalResult(rows=rows, events=events, logs=stacked, compile_s=compile_s, wall_s=wall_s, steps=min(steps, total))
+    warnings = [*nonfinite_warning(_head(carry.nonfinite, b), policy.action_type),
+                *lane_free_warning(np.asarray(batch.map.lanes.valid), meta.scenario_id)]
+    return EvalResult(rows=rows, events=events, logs=stacked, compile_s=compile_s, wall_s=wall_s,
+                      steps=min(steps, total), warnings=warnings)
+
+
+#: What the simulator does with a non-finite action (``sim.Simulator.to_controls``).
+REPAIRED = {"controls": "replaced by a full brake: throttle 0, brake 1, steer 0",
+            "waypoints": "NaN / inf waypoint coordinates replaced by 0, the ego's own position"}
+
+
+def nonfinite_warning(steps, action_type: str) -> list[str]:
+    """[one line] when some episode applied a non-finite action, else [].
+    ``steps``: (B,) int steps per episode whose action held a NaN / inf."""
+    steps = np.asarray(steps)
+    bad = int(np.count_nonzero(steps))
+    if not bad:
+        return []
+    return [f"{bad} of {len(steps)} episodes had non-finite actions ({int(steps.sum())} steps in all; "
+            f"{REPAIRED.get(action_type, 'repaired')}); results may be meaningless"]
+
+
+def lane_free_warning(lanes_valid, scenario_ids, shown: int = 5) -> list[str]:
+    """[one line] naming the scenarios whose map has no lanes, else [].
+    ``lanes_valid``: (B, L, ...) bool; ``scenario_ids``: (B,) (repetitions repeat ids)."""
+    valid = np.asarray(lanes_valid).reshape(len(scenario_ids), -1)
+    ids = list(dict.fromkeys(str(s) for s, ok in zip(scenario_ids, valid.any(axis=1)) if not ok))
+    if not ids:
+        return []
+    more = ", ..." if len(ids) > shown else ""
+    return [f"{len(ids)} scenario(s) have a map with no lanes ({', '.join(ids[:shown])}{more}): every step counts "
+            f"as off-lane and the route has no lane to follow; their scores are meaningless"]
 
 
 def device_batch(packed, limit: int | None = None):
@@ -192,6 +230,19 @@ def with_policy_sensors(config: SimConfig, policy) -> SimConfig:
         chosen = chosen.with_sensor(name, fixed)
     want = set(required) | set(config.sensors.enabled)
     return dataclasses.replace(config, sensors=sensors.SensorConfig.for_policy(tuple(want), chosen))
+
+
+def checked_params(policy, sim: Simulator, batch, key, assets=None, params=None, scenario_id: str | None = None):
+    """``params`` (``policy.init`` when None) for a rollout of ``batch``, with a
+    JAX policy checked first (``testing.checked_params``: ``jax.eval_shape``
+    of ``initial_state`` and ``act`` on the first scenario's observation,
+    ``scenario_id``); one-line DriveE2EError naming the policy's file instead
+    of a JAX traceback. Host policies are checked by ``hostbridge`` as they run."""
+    if hostbridge.is_host(policy):
+        return init_params(policy, sim, batch, key, assets) if params is None else params
+    obs = jax.tree_util.tree_map(lambda a: a[0], first_observation(sim, batch, key, assets))
+    where = f"on scenario {scenario_id}'s first observation" if scenario_id else "on the first observation"
+    return testing.checked_params(policy, obs, key, params, where=where)
 
 
 def init_params(policy, sim: Simulator, batch, key, assets=None):
@@ -244,7 +295,11 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
         dt_s=cfg.dt,
         min_speed_pct=np.asarray(res.min_speed_pct),
         min_speed_valid=np.asarray(res.min_speed_valid),
+        bm_scores=True,
     )
+    # Bench2Drive's Traffic_Signs junction credit needs where each route enters its junction (1 m points).
+    valid = np.asarray(batch.route.valid)
+    junction = abilities.first_junction_index(np.asarray(batch.route.command), valid)
     for i, (m, fine) in enumerate(zip(meta.rows(), fine_rows)):
         counts = {k: int(v[i]) for k, v in ep.counts_dict(res).items()}
         log_i = jax.tree_util.tree_map(lambda a, i=i: a[i], logs)
@@ -258,6 +313,8 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
             "time_of_day": m["time_of_day"],
             "route_length_m": round(float(route_len[i]), 3),
             "route_speed_limit_kmh": round(float(limit_kmh[i]), 2),
+            "route_junction_index": int(junction[i]),
+            "route_waypoints": int(valid[i].sum()),
             "route_completion": float(res.route_completion[i]),
             "infraction_score": float(res.infraction_score[i]),
             "driving_score": float(res.driving_score[i]),

@@ -156,8 +156,10 @@ def gather_result(res):
     if jax.process_count() == 1:
         return res
     parts = allgather_json({"rows": res.rows, "events": res.events, "compile_s": res.compile_s,
-                            "wall_s": res.wall_s, "steps": res.steps})
+                            "wall_s": res.wall_s, "steps": res.steps, "warnings": list(res.warnings)})
     rows = sorted((r for p in parts for r in p["rows"]), key=lambda r: r.get("repetition") or 0)  # stable
     events = {k: v for p in parts for k, v in p["events"].items()}
-    return dataclasses.replace(res, rows=rows, events=events, logs=None,
+    # Each process's warnings count its own share of the episodes: keep every distinct line.
+    warnings = list(dict.fromkeys(w for p in parts for w in p["warnings"]))
+    return dataclasses.replace(res, rows=rows, events=events, logs=None, warnings=warnings,
                                **{k: max(p[k] for p in parts) for k in ("compile_s", "wall_s", "steps")})

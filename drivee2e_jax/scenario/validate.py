@@ -9,7 +9,7 @@ folders is ``schema``'s.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -39,11 +39,21 @@ from drivee2e_jax.scenario.encode import map_obj, scenario_obj, suite_obj
 from drivee2e_jax.scenario.problems import SAFE_ID, Checker, Problem, is_int, is_num, join_path, json_kind, short
 
 __all__ = [
-    "GRID_TOLERANCE_S", "check_suite_json", "check_scenario", "check_map", "check_cross", "validate_records",
+    "GRID_TOLERANCE_S", "MIN_BOX_SIZE_M", "check_suite_json", "check_scenario", "check_map", "check_cross",
+    "validate_records",
 ]
 
 #: A timestamp is "on the grid" when it is within this of some ``k * dt``.
 GRID_TOLERANCE_S = 1e-3
+#: Smallest box length / width, m. The smallest road users are ~0.5 m across
+#: (``importers.common.DEFAULT_SIZES``: pedestrian 0.6 m) and the importers
+#: clamp static obstacles to 0.1 m; a thinner box is a missing size written as
+#: 0, whose collisions silently vanish. Height may be 0: only the ray sensors
+#: read it, and the schema has always allowed it.
+MIN_BOX_SIZE_M = 0.1
+#: What a map without lanes is told (no documented format is lane-free).
+NO_LANES = ("at least one lane (without lanes every step is off-lane and DS is 0: the route, the "
+            "off-lane rule and the observation's lanes all read them)")
 
 
 # --------------------------------------------------------------------------
@@ -117,13 +127,18 @@ def check_suite_json(obj: Any, c: Checker) -> tuple[dict, list[dict]] | None:
     return {"name": name, "version": version, "meta": meta}, entries
 
 
-def _check_track(obj: Any, p: str, c: Checker, dt: float | None, num_steps: int | None) -> TrackRecord | None:
+def _check_track(obj: Any, p: str, c: Checker, dt: float | None, num_steps: int | None,
+                 ego: int | None = None) -> TrackRecord | None:
     mark = c.mark()
     if not c.fields(obj, p, _TRACK_REQ, _TRACK_OPT):
         return None
     tid = c.integer(obj, "track_id", p)
     cat = c.string(obj, "category", p, choices=CATEGORIES)
     size = c.array(obj["size"], join_path(p, "size"), length=3, minimum=0.0) if "size" in obj else None
+    if size is not None and (size[:2] < MIN_BOX_SIZE_M).any():
+        who = "the ego" if tid is not None and tid == ego else "an agent"
+        c.add(join_path(p, "size"), f"length and width >= {MIN_BOX_SIZE_M:g} m (a smaller box never collides)",
+              f"[{', '.join(f'{v:g}' for v in size)}] (track_id {tid}, {who})")
     cols = {}
     for key in ("t", "x", "y", "yaw", "vx", "vy"):
         if key in obj:
@@ -204,7 +219,7 @@ def check_scenario(obj: Any, c: Checker) -> ScenarioRecord | None:
     tracks: list[TrackRecord] = []
     seen: dict[int, int] = {}
     for i, tobj in enumerate(c.listing(obj, "tracks", "") or []):
-        tr = _check_track(tobj, f"tracks[{i}]", c, dt, num_steps)
+        tr = _check_track(tobj, f"tracks[{i}]", c, dt, num_steps, ego)
         if tr is None:
             continue
         if tr.track_id in seen:
@@ -291,6 +306,8 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         successor_refs += [(f"{p}.successors[{j}]", int(s)) for j, s in enumerate(succ)]
         lanes.append(LaneRecord(id=lid, centerline=cl, width=width, speed_limit=speed, type=ltype,
                                 successors=[int(s) for s in succ], left_marking=left, right_marking=right))
+    if isinstance(obj.get("lanes"), list) and not obj["lanes"]:
+        c.add("lanes", NO_LANES, "an empty list")
     ids_text = _ids_text(lane_ids)
     for p, s in successor_refs:
         if s not in lane_ids:
@@ -370,9 +387,10 @@ def _ids_text(ids: Iterable[int], limit: int = 12) -> str:
     return ", ".join(map(str, ids[:limit])) + (", ..." if len(ids) > limit else "") if ids else "none"
 
 
-def check_cross(obj: Any, c: Checker, entry: dict | None, map_ids: Iterable[str]) -> None:
+def check_cross(obj: Any, c: Checker, entry: dict | None, map_ids: Iterable[str] | Mapping[str, Any]) -> None:
     """Checks against other files: the scenario file says what suite.json
-    says about it, and its map exists."""
+    says about it, and its map exists (``map_ids``: the map ids, or
+    {map_id: MapRecord or None}: then a map without lanes is named here too)."""
     if not isinstance(obj, dict):
         return
     if entry is not None:
@@ -383,9 +401,12 @@ def check_cross(obj: Any, c: Checker, entry: dict | None, map_ids: Iterable[str]
             if isinstance(got, str) and got != value and (allowed is None or got in allowed):
                 c.add(key, f"{value!r} as listed in suite.json (scenarios[{entry['row']}])", repr(got))
     map_id = obj.get("map_id")
+    records = map_ids if isinstance(map_ids, Mapping) else {}
     map_ids = sorted(map_ids)
     if isinstance(map_id, str) and map_id not in map_ids:
         c.add("map_id", f"one of the suite's maps ({', '.join(map_ids) or 'none: maps/ is empty'})", repr(map_id))
+    elif isinstance(records.get(map_id), MapRecord) and not records[map_id].lanes:
+        c.add("map_id", f"a map with {NO_LANES}", f"{map_id!r} (maps/{map_id}.json has no lanes)")
 
 
 def validate_records(suite: SuiteRecord) -> list[Problem]:

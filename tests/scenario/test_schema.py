@@ -184,6 +184,9 @@ CASES = {
                                "-1 or a lane id of this map"),
     "signal length": (S, _set(["signals", "0"], [3, 3, 3]), 'signals["0"]', "50 states"),
     "negative size": (S, _set(["tracks", 0, "size", 1], -1.0), "tracks[0].size[1]", ">= 0"),
+    "zero ego size": (S, _set(["tracks", 2, "size"], [0, 0, 0]), "tracks[2].size", "length and width >= 0.1 m"),
+    "thin agent": (S, _set(["tracks", 0, "size"], [4.5, 0.01, 1.5]), "tracks[0].size", "length and width >= 0.1 m"),
+    "map without lanes": (M, _set(["lanes"], []), "lanes", "at least one lane"),
     "negative lane width": (M, _set(["lanes", 2, "width"], -3.0), "lanes[2].width", ">= 0"),
     "short route": (S, _set(["route", "waypoints"], [[0.0, 0.0]]), "route.waypoints", "at least 2 points"),
     "duplicate track ids": (S, _set(["tracks", 1, "track_id"], 3), "tracks[1].track_id", "a unique track id"),
@@ -217,6 +220,30 @@ def test_each_problem_names_file_field_and_expectation(tiny_suite_dir, case):
     assert f"{first.file}: {first.field}" in msg and first.expected in msg
     if len(problems) > 1:
         assert f"(and {len(problems) - 1} more; run `drivee2e suite validate" in msg
+
+
+def test_zero_size_names_track_id_and_ego(tiny_suite_dir):
+    _edit(tiny_suite_dir, S, _set(["tracks", 0, "size"], [0, 0, 0]))
+    _edit(tiny_suite_dir, S, _set(["tracks", 2, "size"], [0.05, 2.0, 0.0]))
+    ego = json.loads((tiny_suite_dir / S).read_text())["ego_track_id"]
+    got = {p.field: p.got for p in validate_suite(tiny_suite_dir) if p.file == S}
+    assert ego == 7  # tracks[2]
+    assert got["tracks[0].size"] == "[0, 0, 0] (track_id 3, an agent)"
+    assert got["tracks[2].size"] == "[0.05, 2, 0] (track_id 7, the ego)"
+
+
+def test_height_zero_and_small_real_sizes_stay_valid(tiny_suite_dir):
+    _edit(tiny_suite_dir, S, _set(["tracks", 2, "size"], [0.1, 0.1, 0.0]))  # the bound itself, unknown height
+    assert validate_suite(tiny_suite_dir) == []
+
+
+def test_records_with_a_lane_free_map_name_the_scenario(tiny_suite):
+    tiny_suite.maps["m_cross"].lanes = []
+    users = sorted(s.scenario_id for s in tiny_suite.scenarios if s.map_id == "m_cross")
+    problems = validate_records(tiny_suite)
+    assert any(p.file == "maps/m_cross.json" and p.field == "lanes" for p in problems)
+    named = sorted(p.file for p in problems if p.field == "map_id" and "has no lanes" in p.got)
+    assert users and named == [f"scenarios/{s}.json" for s in users]
 
 
 def test_unparsable_json_reports_line_and_column(tiny_suite_dir):

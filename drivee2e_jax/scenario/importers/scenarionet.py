@@ -4,7 +4,10 @@ A pickle can run arbitrary code when it is loaded, so files are read with
 :class:`SafeUnpickler`: it admits only plain containers and scalars and the
 numpy globals needed to rebuild arrays, dtypes and numpy scalars
 (:data:`ALLOWED_GLOBALS`), and refuses anything else with one line naming the
-file and the refused global. Nothing from metadrive or scenarionet is needed.
+file and the refused global. A corrupt or hostile file declaring a huge array
+or string is refused the same way, before anything is allocated
+(:data:`ALLOC_FACTOR`, :func:`safe_load`). Nothing from metadrive or
+scenarionet is needed.
 
 Conversion:
 
@@ -16,7 +19,8 @@ Conversion:
   nuScenes category in ``metadata.type`` where present (:data:`FINE_CATEGORIES`);
   TRAFFIC_CONE / TRAFFIC_BARRIER become static obstacles (when they do not
   move); other types are reported as Skipped. Sizes are the median of
-  ``length/width/height`` over valid steps. A vehicle whose width exceeds its
+  ``length/width/height`` over valid steps (missing, non-finite or below
+  ``validate.MIN_BOX_SIZE_M``: the category's default). A vehicle whose width exceeds its
   length has the two swapped (the nuScenes conversion writes the ego as
   1.73 m long, 4.08 m wide) and a note says so.
 * the ego position is the nuScenes ``ego_pose`` (midpoint of the rear axle);
@@ -37,8 +41,10 @@ from __future__ import annotations
 
 import codecs
 import collections
+import io
 import math
 import pickle
+import pickletools
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +60,7 @@ from drivee2e_jax.polyline import polyline_length
 from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
+from drivee2e_jax.scenario.validate import MIN_BOX_SIZE_M
 
 __all__ = ["load", "safe_load", "SafeUnpickler", "ALLOWED_GLOBALS", "TYPE_CATEGORIES", "FINE_CATEGORIES",
            "LINE_MARKINGS"]
@@ -98,12 +105,28 @@ def _allowed() -> dict[tuple[str, str], Any]:
 ALLOWED_GLOBALS: dict[tuple[str, str], Any] = {}
 
 
-class SafeUnpickler(pickle.Unpickler):
-    """An unpickler that admits only ``ALLOWED_GLOBALS`` (containers, scalars, numpy arrays)."""
+#: A pickle may declare at most ``ALLOC_FACTOR`` x its own size + ``ALLOC_SLACK_BYTES``
+#: of numpy arrays and bytearrays in all. A genuine array's raw bytes are in the
+#: file (protocols 2-5), and an object array's 8-byte slots each need at least one
+#: opcode (>= 1 byte), so honest files stay under 8x; a larger declaration is a
+#: corrupt or hostile file that would otherwise end in a MemoryError (or the OOM
+#: killer) before anything could be checked.
+ALLOC_FACTOR = 16
+ALLOC_SLACK_BYTES = 1 << 20
 
-    def __init__(self, file, *, source: str = "<pickle>"):
+
+class SafeUnpickler(pickle.Unpickler):
+    """An unpickler that admits only ``ALLOWED_GLOBALS`` (containers, scalars, numpy arrays)
+    and at most ``budget_bytes`` of declared array / bytearray memory (None: unbounded)."""
+
+    def __init__(self, file, *, source: str = "<pickle>", budget_bytes: int | None = None):
         super().__init__(file)
         self.source = source
+        self.budget_bytes = budget_bytes
+        self.claimed_bytes = 0
+        self._array_type = _bounded_array_type(self.claim)
+        self._guards = {multiarray._reconstruct: self._reconstruct, np.ndarray: self._array_type,
+                        multiarray.scalar: self._scalar, bytearray: self._bytearray}
 
     def find_class(self, module: str, name: str) -> Any:
         if not ALLOWED_GLOBALS:
@@ -112,17 +135,91 @@ class SafeUnpickler(pickle.Unpickler):
         if obj is None:
             raise DriveE2EError(f"{self.source}: refused to load global {module}.{name}; a ScenarioNet pickle "
                                 "may hold only dicts, lists, numbers, strings and numpy arrays")
-        return obj
+        return self._guards.get(obj, obj)
+
+    def claim(self, shape: Any, dtype: Any) -> None:
+        """Count an allocation of ``shape`` x ``dtype`` bytes; one-line DriveE2EError beyond the budget."""
+        try:
+            dims = (int(shape),) if isinstance(shape, int | np.integer) else tuple(int(d) for d in shape)
+            item = np.dtype(dtype).itemsize
+        except (TypeError, ValueError) as e:
+            raise DriveE2EError(f"{self.source}: not a readable pickle (array shape {shape!r}, dtype {dtype!r}: "
+                                f"{e})") from None
+        n = math.prod(max(d, 0) for d in dims) * item
+        self.claimed_bytes += n
+        if self.budget_bytes is not None and self.claimed_bytes > self.budget_bytes:
+            raise DriveE2EError(f"{self.source}: refused an array of shape {dims} x {item} bytes ({n:.3g} bytes): "
+                                f"the pickle declares more array memory than a {self.budget_bytes:.3g}-byte bound "
+                                f"({ALLOC_FACTOR} x the file size + {ALLOC_SLACK_BYTES} bytes); the file is corrupt "
+                                f"or not a ScenarioNet pickle")
+
+    def _reconstruct(self, subtype, shape, dtype):
+        self.claim(shape, dtype)
+        return multiarray._reconstruct(self._array_type, shape, dtype)
+
+    def _scalar(self, dtype, *args):
+        self.claim((), dtype)
+        return multiarray.scalar(dtype, *args)
+
+    def _bytearray(self, *args):
+        if args and isinstance(args[0], int):
+            self.claim((args[0],), np.uint8)
+        return bytearray(*args)
+
+
+def _bounded_array_type(claim) -> type:
+    """An ``np.ndarray`` subclass that ``claim``s its size when built or unpickled
+    (``__setstate__`` allocates object arrays before filling them);
+    :func:`_plain_arrays` turns its instances back into plain arrays."""
+
+    def new(cls, shape, dtype=float, *args, **kwargs):
+        claim(shape, dtype)
+        return np.ndarray.__new__(cls, shape, dtype, *args, **kwargs)
+
+    def setstate(self, state):
+        if isinstance(state, tuple) and len(state) in (4, 5):  # ([version,] shape, dtype, fortran, data)
+            claim(*state[-4:-2])
+        np.ndarray.__setstate__(self, state)
+
+    return type("ndarray", (np.ndarray,), {"__new__": new, "__setstate__": setstate, "__module__": __name__})
+
+
+def _plain_arrays(obj: Any, kind: type) -> Any:
+    """``obj`` with every ``kind`` array (nested in dicts, lists, tuples) viewed as a plain ndarray."""
+    if isinstance(obj, kind):
+        return obj.view(np.ndarray)
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            obj[k] = _plain_arrays(v, kind)
+    elif isinstance(obj, list):
+        obj[:] = [_plain_arrays(v, kind) for v in obj]
+    elif isinstance(obj, tuple):
+        return tuple(_plain_arrays(v, kind) for v in obj)
+    return obj
 
 
 def safe_load(path: Path) -> Any:
-    """Unpickle ``path`` with :class:`SafeUnpickler` (one-line DriveE2EError on anything else)."""
+    """Unpickle ``path`` with :class:`SafeUnpickler` (one-line DriveE2EError on anything else).
+
+    Every length an opcode declares is checked against the bytes that remain
+    first (``pickletools.genops`` reads without allocating: a declared 10^15-byte
+    string fails here, not in a MemoryError), then arrays are bounded by
+    ``ALLOC_FACTOR`` x the file size (``SafeUnpickler.claim``).
+    """
     try:
-        with open(path, "rb") as f:
-            return SafeUnpickler(f, source=str(path)).load()
+        data = Path(path).read_bytes()
+        for _ in pickletools.genops(data):
+            pass
+        unpickler = SafeUnpickler(io.BytesIO(data), source=str(path),
+                                  budget_bytes=ALLOC_FACTOR * len(data) + ALLOC_SLACK_BYTES)
+        return _plain_arrays(unpickler.load(), unpickler._array_type)
     except DriveE2EError:
         raise
-    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError) as e:
+    except MemoryError:
+        raise DriveE2EError(f"{path}: the pickle asks for more memory than there is (corrupt or not a "
+                            f"ScenarioNet pickle)") from None
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError,
+            OverflowError, RecursionError) as e:
         raise DriveE2EError(f"{path}: not a readable pickle ({type(e).__name__}: "
                             f"{' '.join(str(e).split())[:100]})") from None
 
@@ -317,7 +414,7 @@ def _one(path: Path, options: ImportOptions, limit: int | None) -> ImportResult:
                 (skipped if isinstance(out, Skipped) else obstacles).append(out)
                 continue
         default = np.array(common.DEFAULT_SIZES[cat])
-        sz = np.where(np.isfinite(sz) & (sz > 0), sz, default)
+        sz = np.where(np.isfinite(sz) & (sz >= MIN_BOX_SIZE_M), sz, default)  # 0 = unknown in some conversions
         if cat in common.VEHICLES and sz[1] > sz[0]:
             sz = sz[[1, 0, 2]]
             swapped += 1

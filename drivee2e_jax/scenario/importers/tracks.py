@@ -12,6 +12,7 @@ import numpy as np
 
 from drivee2e_jax.polyline import wrap_angle
 from drivee2e_jax.records import CATEGORIES, ObstacleRecord, TrackRecord
+from drivee2e_jax.scenario.validate import MIN_BOX_SIZE_M
 
 from .results import Skipped
 
@@ -36,6 +37,24 @@ DEFAULT_SIZES = {
     "motorcycle": (2.1, 0.8, 1.5), "tricycle": (2.8, 1.2, 1.6), "pedestrian": (0.6, 0.6, 1.75),
     "cyclist": (1.8, 0.7, 1.7),
 }
+
+
+def repaired_size(size, category: str) -> np.ndarray:
+    """A source box size (3,) or per-sample (T, 3), m -> one (3,) box: the
+    median over samples, with a length or width below ``MIN_BOX_SIZE_M`` (or
+    not finite) replaced by the category's ``DEFAULT_SIZES`` entry (a
+    non-finite height too), since validation refuses such boxes (they would
+    never collide)."""
+    size = np.asarray(size, np.float64)
+    if size.ndim == 2:
+        size = np.median(size, axis=0)
+    size = size.reshape(3).copy()
+    default = DEFAULT_SIZES.get(category, DEFAULT_SIZES["car"])
+    if not (np.isfinite(size[:2]).all() and (size[:2] >= MIN_BOX_SIZE_M).all()):
+        size[:2] = default[:2]
+    if not np.isfinite(size[2]):
+        size[2] = default[2]
+    return size
 
 
 @dataclass
@@ -110,9 +129,7 @@ def resample_track(raw: RawTrack, track_id: int, dt: float, num_steps: int, *,
     r = resample(raw.t, np.stack(cols, axis=1), dt, num_steps, max_gap_s=max_gap_s, angles=(2,))
     if r.k.size == 0:
         return None, None
-    size = np.asarray(raw.size, np.float64)
-    if size.ndim == 2:
-        size = np.median(size, axis=0)
+    size = repaired_size(raw.size, raw.category)
     v = r.values
     vel = v[:, 3:5].copy() if raw.vel is not None else None
     visible = (v[:, -1] > 0.5) if raw.visible is not None else None

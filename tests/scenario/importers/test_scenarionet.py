@@ -11,6 +11,7 @@ import pytest
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.importers import ImportOptions, load, scenarionet
+from drivee2e_jax.scenario.importers.common import DEFAULT_SIZES
 from drivee2e_jax.scenario.validate import validate_records
 from tests.helpers.importer_files import scenario_dict, write_pkl
 
@@ -41,6 +42,19 @@ def test_tiny_scenario_converts(tmp_path):
     assert sorted(b.marking for b in m.boundaries) == ["road_edge", "solid"]
     assert len(m.crosswalks) == 1 and len(m.lanes) == 1 and m.lanes[0].width == pytest.approx(3.5)
     assert any("SPEED_BUMP x1" in n for n in r.notes) and any("swapped" in n for n in r.notes)
+
+
+def test_zero_or_tiny_sizes_become_the_category_default(tmp_path):
+    """Some conversions write 0 for an unknown size: such a box would never collide."""
+    d = scenario_dict()
+    d["tracks"]["car1"]["state"]["width"][:] = 0.0
+    d["tracks"]["ped"]["state"]["length"][:] = 0.01
+    r = load("scenarionet", [write_pkl(tmp_path / "sd_zero.pkl", d)], ImportOptions())
+    s = r.scenarios[0]
+    by_id = {r.meta["track_ids"][s.scenario_id][str(t.track_id)]: t for t in s.tracks}
+    np.testing.assert_allclose(by_id["car1"].size, [11.0, DEFAULT_SIZES["bus"][1], 3.5])
+    np.testing.assert_allclose(by_id["ped"].size, [DEFAULT_SIZES["pedestrian"][0], 0.7, 1.8])
+    assert validate_records_ok(r)
 
 
 def validate_records_ok(r) -> bool:
@@ -124,6 +138,59 @@ def test_malicious_pickle_is_refused_and_never_runs(tmp_path):
     with open(p, "rb") as f:
         pickle.load(f)
     assert marker.exists()
+
+
+class _HugeArray:
+    """Unpickles as ``_reconstruct(ndarray, (10**15,), 'b')``: a 10^15-byte allocation."""
+
+    def __reduce__(self):
+        return (np.ndarray.__reduce__(np.zeros(0, np.int8))[0], (np.ndarray, (10**15,), b"b"))
+
+
+class _HugeObjectArray:
+    """An object array whose pickled state declares 10^14 slots but holds one item."""
+
+    def __reduce__(self):
+        fn, args, _ = np.ndarray.__reduce__(np.zeros(0, object))
+        return (fn, args, (1, (10**14,), np.dtype("O"), False, [1]))
+
+
+class _HugeBytearray:
+    def __reduce__(self):
+        return (bytearray, (10**15,))
+
+
+@pytest.mark.parametrize("payload", [_HugeArray, _HugeObjectArray, _HugeBytearray])
+@pytest.mark.parametrize("protocol", [2, 5])
+def test_huge_declared_allocations_are_refused(tmp_path, payload, protocol):
+    d = scenario_dict()
+    d["metadata"]["payload"] = payload()
+    p = tmp_path / "sd_huge.pkl"
+    p.write_bytes(pickle.dumps(d, protocol=protocol))
+    with pytest.raises(DriveE2EError) as e:
+        scenarionet.safe_load(p)
+    msg = str(e.value)
+    assert msg.startswith(f"{p}: refused an array of shape (") and "x the file size" in msg and "\n" not in msg
+    # the plain unpickler really asks for it: the test can fail
+    with pytest.raises(MemoryError):
+        pickle.loads(p.read_bytes())
+
+
+def test_huge_opcode_length_is_refused_before_allocating(tmp_path):
+    p = tmp_path / "sd_bytes8.pkl"
+    p.write_bytes(b"\x80\x05\x8e" + (10**15).to_bytes(8, "little") + b"abc.")  # BINBYTES8 of 10^15 bytes
+    with pytest.raises(MemoryError):
+        pickle.loads(p.read_bytes())
+    with pytest.raises(DriveE2EError, match=r"sd_bytes8.pkl: not a readable pickle \(ValueError: expected 10+ bytes"):
+        scenarionet.safe_load(p)
+
+
+def test_loaded_arrays_are_plain_ndarrays(tmp_path):
+    p = write_pkl(tmp_path / "sd_plain.pkl", scenario_dict())
+    raw = scenarionet.safe_load(p)
+    pos = raw["tracks"]["ego"]["state"]["position"]
+    assert type(pos) is np.ndarray
+    np.testing.assert_array_equal(pos, pickle.loads(p.read_bytes())["tracks"]["ego"]["state"]["position"])
 
 
 @pytest.mark.parametrize("payload", [

@@ -1,0 +1,119 @@
+"""The `drivee2e` CLI turns every error into one line on stderr with a non-zero
+exit code; the traceback only with --debug."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import textwrap
+
+import pytest
+
+from drivee2e_jax.cli import common, main
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.testing import TINY_SUITE
+
+
+def _raising(exc: BaseException):
+    def func(args):
+        raise exc
+
+    return func
+
+
+def _json_error() -> json.JSONDecodeError:
+    try:
+        json.loads('{"a": 1,}')
+    except json.JSONDecodeError as e:
+        return e
+    raise AssertionError("expected invalid JSON")
+
+
+CASES = {
+    "drivee2e": (DriveE2EError("suite.json: name: expected a string\ngot 3"), 2,
+                 "drivee2e: error: suite.json: name: expected a string got 3"),
+    "json": (_json_error(), 2, "drivee2e: error: invalid JSON: Expecting property name enclosed in double quotes"),
+    "missing file": (FileNotFoundError(2, "No such file or directory", "runs/x.json"), 2,
+                     "drivee2e: error: runs/x.json: No such file or directory"),
+    "permission": (PermissionError(13, "Permission denied", "/results"), 2,
+                   "drivee2e: error: /results: Permission denied"),
+    "disk full": (OSError(28, "No space left on device"), 2, "drivee2e: error: [Errno 28] No space left on device"),
+    "memory": (MemoryError(), 2, "drivee2e: error: out of memory (try fewer scenarios"),
+    "interrupt": (KeyboardInterrupt(), 130, "drivee2e: interrupted"),
+    "bug": (RuntimeError("shapes (3,) and (4,)\nin add"), 1,
+            "drivee2e: error: RuntimeError: shapes (3,) and (4,) in add (unexpected; rerun with --debug for the "
+            "traceback)"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_every_error_is_one_line_with_an_exit_code(capsys, case):
+    exc, code, line = CASES[case]
+    assert common.run(_raising(exc), argparse.Namespace(), debug=False) == code
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.count("\n") == 1 and out.err.startswith(line), out.err
+    assert "Traceback" not in out.err
+
+
+def test_a_long_unexpected_error_is_cut():
+    line = common.unexpected_message(ValueError("x" * 5000))
+    assert len(line) < common.MAX_MESSAGE + 80
+    assert line.endswith("xx... (unexpected; rerun with --debug for the traceback)")
+
+
+@pytest.mark.parametrize("case", ["drivee2e", "interrupt", "bug"])
+def test_debug_shows_the_traceback(case):
+    exc = CASES[case][0]
+    with pytest.raises(type(exc)):
+        common.run(_raising(exc), argparse.Namespace(), debug=True)
+
+
+POLICY = """\
+import jax.numpy as jnp
+
+from drivee2e_jax.policy import StatelessPolicy
+from drivee2e_jax.types import Controls
+
+
+class P(StatelessPolicy):
+    name = "p"
+
+    def act(self, params, obs, state, key):
+        z = jnp.zeros((), jnp.float32)
+{body}
+
+policy = P()
+"""
+
+
+def _policy_file(tmp_path, body: str):
+    """A policy file whose act ends with ``body``; (its path, the line of its ``# HERE``)."""
+    path = tmp_path / "my_policy.py"
+    path.write_text(POLICY.format(body=textwrap.indent(textwrap.dedent(body), " " * 8)))
+    return path, next(i + 1 for i, s in enumerate(path.read_text().splitlines()) if s.endswith("# HERE"))
+
+
+def test_bench_with_a_policy_branching_on_arrays_is_one_line(tmp_path, capsys):
+    """The user's report: 35-100 lines of JAX traceback for a Python `if` on an array."""
+    policy, line_no = _policy_file(tmp_path, """\
+        if obs.ego[0] > 1.0:  # HERE
+            return Controls(throttle=z, brake=z, steer=z), state
+        return Controls(throttle=z, brake=z + 1, steer=z), state
+    """)
+    code = main(["bench", "--suite", str(TINY_SUITE), "--split", "val", "--policy", str(policy),
+                 "--out", str(tmp_path / "out"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    (line,) = [s for s in err.splitlines() if s.startswith("drivee2e: error:")]
+    assert line.startswith(f"drivee2e: error: {policy}: act(params, obs, state, key) branches on a traced value")
+    assert f"at {policy}:{line_no}; use jnp.where or jax.lax.cond" in line
+
+
+def test_check_policy_names_the_line(tmp_path, capsys):
+    policy, line_no = _policy_file(tmp_path, """\
+        raise ValueError("no route")  # HERE
+    """)
+    assert main(["check-policy", str(policy), "--batch", "1", "--steps", "1"]) == 1
+    out = capsys.readouterr().out.strip()
+    assert out.startswith(f"{policy}: act(params, obs, state, key) raised ValueError: no route at {policy}:{line_no} ")
+    assert "\n" not in out
