@@ -7,15 +7,16 @@ from pathlib import Path
 from drivee2e_jax.cli.common import add_command
 
 EPILOG = """\
-examples:
-  drivee2e export-mcap results/twin15-val --scenario twin15-0412 --out ep.mcap
-  drivee2e export-mcap results/run --policy expert --scenario a --scenario b --out two.mcap
-  drivee2e export-mcap results/run --out all.mcap --no-sensors --force
+examples (after `drivee2e bench --split val --limit 5`, which writes results/twin15-val):
+  drivee2e export-mcap results/twin15-val --scenario twin15_0000 --out ep.mcap
+  drivee2e export-mcap results/twin15-val --policy expert --scenario twin15_0000 --scenario twin15_0001 --out two.mcap
+  drivee2e export-mcap results/twin15-val --out all.mcap --no-sensors --force
 
 Episodes are re-simulated (rollouts are deterministic) with the run's settings
 from the folder the bench ran in; each episode's Driving Score is checked
-against the stored one. Open the file in Foxglove (File > Open local file);
-topics are /<scenario>/{tf,scene,map,bev,lidar,metrics,infractions}
+against the stored one. Messages use Foxglove's published protobuf schemas
+(the metrics topic is JSON). Open the file in Foxglove (File > Open local
+file); topics are /<scenario>/{tf,scene,map,bev,lidar,metrics,infractions}
 (docs/visual.md).
 """
 
@@ -25,7 +26,7 @@ def add_parser(subparsers) -> None:
         subparsers, "export-mcap",
         help="write episodes of a results folder as an MCAP log (Foxglove)",
         description="Re-simulate episodes of a `drivee2e bench` results folder and write them to one MCAP file "
-        "with Foxglove's well-known schemas: scene entities (ego, agents, map, route, signals), the BEV as an "
+        "in Foxglove's published schemas: scene entities (ego, agents, map, route, signals), the BEV as an "
         "image, LiDAR as a point cloud, metrics and infractions.",
         epilog=EPILOG,
     )

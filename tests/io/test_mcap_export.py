@@ -1,28 +1,39 @@
-"""MCAP export: read the file back with the mcap reader; every channel, count and schema."""
+"""MCAP export: read the file back with the mcap reader and check every channel, count and message
+against the schemas Foxglove publishes (the ``foxglove-schemas-protobuf`` classes, and the
+FileDescriptorSet each schema record carries, as a reader that has only the file would)."""
 
 from __future__ import annotations
 
-import base64
+import importlib
 import io
 import json
+import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from google.protobuf import descriptor_pool, message_factory
+from google.protobuf.descriptor_pb2 import FileDescriptorProto, FileDescriptorSet
 from mcap.reader import make_reader
 
 from drivee2e_jax.cli import main
+from drivee2e_jax.cli.export_mcap import EPILOG
 from drivee2e_jax.eval import traces as episodes
 from drivee2e_jax.eval.bench import BenchConfig, run_bench
 from drivee2e_jax.io import mcap_export as mx
+from drivee2e_jax.io.foxglove_schemas import to_ns
 from drivee2e_jax.observe.bev import BevConfig
 from drivee2e_jax.observe.lidar import LidarConfig
 from drivee2e_jax.observe.sensors import SensorConfig
+from drivee2e_jax.scenario.suite import load_suite
 
 REPO = Path(__file__).resolve().parents[2]
-TINY = REPO / "scenarios" / "examples" / "tiny"
+TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 SMALL_SENSORS = SensorConfig(bev=BevConfig(height=32, width=32, resolution=1.0), lidar=LidarConfig(channels=4, azimuth_bins=32))
 PER_STEP = ("tf", "scene", "bev", "lidar", "metrics")
+FOXGLOVE = {"foxglove.FrameTransform", "foxglove.SceneUpdate", "foxglove.CompressedImage", "foxglove.PointCloud",
+            "foxglove.Log"}
 
 
 @pytest.fixture(scope="module")
@@ -41,38 +52,102 @@ def exported(run_dir, tmp_path_factory):
     with path.open("rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        messages = [(schema.name, json.loads(schema.data), ch.topic, msg) for schema, ch, msg in reader.iter_messages()]
+        messages = list(reader.iter_messages())
     return traces, path, summary, messages
 
 
-def _check(value, schema: dict, where: str) -> None:
-    """A small JSON Schema check: types, enum consts, nested objects and arrays.
-    Foxglove's schemas list no `required`; every field they declare must be
-    in our messages, and no undeclared field may appear."""
-    if "oneOf" in schema:
-        assert value in [o["const"] for o in schema["oneOf"]], where
-        return
+def _by_topic(messages) -> dict:
+    out = {}
+    for _, ch, msg in messages:
+        out.setdefault(ch.topic, []).append(msg)
+    return out
+
+
+# --------------------------------------------------------------------------
+# Validation against the published schemas
+# --------------------------------------------------------------------------
+
+
+def official_class(schema_name: str):
+    """The class foxglove-schemas-protobuf publishes for ``foxglove.<Name>`` (looked up by name, not via mx)."""
+    pkg, name = schema_name.split(".")
+    assert pkg == "foxglove", schema_name
+    return getattr(importlib.import_module(f"foxglove_schemas_protobuf.{name}_pb2"), name)
+
+
+def class_from_record(schema):
+    """The class a reader with only the file builds: the schema record's FileDescriptorSet, in a fresh pool."""
+    pool = descriptor_pool.DescriptorPool()
+    for f in FileDescriptorSet.FromString(schema.data).file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+
+
+def parse_exactly(cls, data: bytes):
+    """Parse ``data`` with ``cls``; every byte must belong to a field the schema defines."""
+    msg = cls.FromString(data)
+    known = cls()
+    known.CopyFrom(msg)
+    known.DiscardUnknownFields()
+    assert known.SerializeToString() == data, f"{cls.DESCRIPTOR.full_name}: fields the schema does not define"
+    return msg
+
+
+def _walk(msg):
+    """Every message in ``msg``'s tree, ``msg`` first."""
+    yield msg
+    for fd, value in msg.ListFields():
+        if fd.message_type is not None:
+            for v in value if fd.is_repeated else [value]:
+                yield from _walk(v)
+
+
+def check_foxglove_rules(msg, log_time: int, where: str) -> None:
+    """What Foxglove's schema docs ask beyond types: stamps, one of color/colors, unit quaternions,
+    colours in [0, 1], packed point layout, a PNG image, entity ids and lifetimes."""
+    if "timestamp" in msg.DESCRIPTOR.fields_by_name:
+        assert to_ns(msg.timestamp) == log_time, where
+    for m in _walk(msg):
+        kind = m.DESCRIPTOR.full_name
+        if kind == "foxglove.SceneEntity":
+            assert m.id and m.frame_id == "world" and to_ns(m.timestamp) == log_time and to_ns(m.lifetime) > 0, where
+        elif kind == "foxglove.LinePrimitive":
+            assert m.HasField("color") or len(m.colors) == len(m.points) > 0, f"{where}: no color/colors"
+            assert m.thickness > 0 and m.type in (0, 1, 2) and all(i < len(m.points) for i in m.indices), where
+        elif kind == "foxglove.Quaternion":
+            assert math.isclose(m.x**2 + m.y**2 + m.z**2 + m.w**2, 1.0, abs_tol=1e-9), where
+        elif kind == "foxglove.Color":
+            assert all(0 <= c <= 1 for c in (m.r, m.g, m.b, m.a)), where
+        elif kind == "foxglove.PointCloud":
+            names = {f.name for f in m.fields}
+            assert len(names & {"x", "y", "z"}) >= 2 and len(m.data) % m.point_stride == 0, where
+            assert all(f.offset < m.point_stride and f.type != 0 for f in m.fields), where
+        elif kind == "foxglove.CompressedImage":
+            assert m.format == "png" and m.data.startswith(b"\x89PNG\r\n\x1a\n") and m.frame_id, where
+        elif kind == "foxglove.Log":
+            assert m.level == m.WARNING and m.message and m.name, where
+
+
+def check_json(value, schema: dict, where: str) -> None:
+    """A small JSON Schema check of our metrics message: types, bounds, required, no extra fields."""
     kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
     ok = {"object": dict, "array": list, "string": str, "boolean": bool, "null": type(None),
           "integer": int, "number": (int, float)}
     assert any(isinstance(value, ok[k]) and not (k in ("integer", "number") and isinstance(value, bool))
                for k in kinds), f"{where}: {type(value).__name__} is not {kinds}"
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        assert value >= schema.get("minimum", -np.inf) and value <= schema.get("maximum", np.inf), where
+        assert schema.get("minimum", -np.inf) <= value <= schema.get("maximum", np.inf), where
     if isinstance(value, dict):
         props = schema["properties"]
-        assert set(value) == set(props), f"{where}: fields {sorted(set(value) ^ set(props))}"
+        assert set(schema["required"]) <= set(value) <= set(props), f"{where}: fields {sorted(set(value) ^ set(props))}"
         for k, v in value.items():
-            _check(v, props[k], f"{where}.{k}")
-    if isinstance(value, list) and "items" in schema:
-        for i, v in enumerate(value):
-            _check(v, schema["items"], f"{where}[{i}]")
+            check_json(v, props[k], f"{where}.{k}")
 
 
 def test_every_channel_schema_and_message_count(exported):
     traces, _, summary, messages = exported
     assert len(traces) == 2
-    channels = {c.topic: (summary.schemas[c.schema_id].name, c.message_encoding) for c in summary.channels.values()}
+    channels = {c.topic: (summary.schemas[c.schema_id], c.message_encoding) for c in summary.channels.values()}
     counts = {c.topic: summary.statistics.channel_message_counts[i] for i, c in summary.channels.items()}
     want = {}
     for t in traces:
@@ -85,66 +160,159 @@ def test_every_channel_schema_and_message_count(exported):
             assert counts[f"{p}/{name}"] == t.num_steps
         assert counts[f"{p}/map"] == 1
         assert counts[f"{p}/infractions"] == len(t.events) > 0
-    assert {k: v[0] for k, v in channels.items()} == want
-    assert {v[1] for v in channels.values()} == {"json"}
-    assert {s.encoding for s in summary.schemas.values()} == {"jsonschema"}
+    assert {k: v[0].name for k, v in channels.items()} == want
+    for schema, encoding in channels.values():
+        is_foxglove = schema.name in FOXGLOVE
+        assert (schema.encoding, encoding) == (("protobuf", "protobuf") if is_foxglove else ("jsonschema", "json"))
+    assert len(summary.schemas) == len(FOXGLOVE) + 1  # one record per schema, shared by the episodes
     assert len(messages) == sum(counts.values())
     assert sum(counts[f"/{t.scenario_id}/{n}"] for t in traces for n in PER_STEP) == len(PER_STEP) * sum(
         t.num_steps for t in traces)
 
 
-def test_payloads_validate_against_their_schemas(exported):
+def test_schema_records_are_the_published_descriptors(exported):
+    """Each protobuf schema record holds Foxglove's own .proto files, byte for byte."""
+    _, _, summary, _ = exported
+    for schema in summary.schemas.values():
+        if schema.encoding != "protobuf":
+            continue
+        files = {f.name: f for f in FileDescriptorSet.FromString(schema.data).file}
+        published = official_class(schema.name).DESCRIPTOR.file
+        todo = [published]
+        while todo:
+            fd = todo.pop()
+            want = FileDescriptorProto()
+            fd.CopyToProto(want)
+            assert files.pop(fd.name) == want, f"{schema.name}: {fd.name} differs from the published file"
+            todo += [d for d in fd.dependencies if d.name in files]
+        assert not files, f"{schema.name}: files that are not its dependencies: {sorted(files)}"
+        assert class_from_record(schema).DESCRIPTOR.full_name == schema.name
+
+
+def test_every_message_parses_with_the_published_schema(exported):
     _, _, _, messages = exported
+    from_record = {}
     seen = set()
-    for name, schema, topic, msg in messages:
-        assert schema["title"] == name
-        payload = json.loads(msg.data)
-        _check(payload, schema, topic)
-        stamp = payload["timestamp"] if "timestamp" in payload else payload["entities"][0]["timestamp"]
-        assert stamp["sec"] * 10**9 + stamp["nsec"] == msg.log_time
-        seen.add(name)
-    assert seen == {"foxglove.FrameTransform", "foxglove.SceneUpdate", "foxglove.CompressedImage",
-                    "foxglove.PointCloud", "foxglove.Log", "drivee2e.EpisodeMetrics"}
+    for schema, ch, msg in messages:
+        where = f"{ch.topic}#{msg.sequence}"
+        assert msg.log_time == msg.publish_time, where
+        if schema.encoding == "protobuf":
+            parsed = parse_exactly(official_class(schema.name), msg.data)
+            cls = from_record.setdefault(schema.id, class_from_record(schema))
+            assert parse_exactly(cls, msg.data).SerializeToString() == parsed.SerializeToString(), where
+            check_foxglove_rules(parsed, msg.log_time, where)
+        else:
+            payload = json.loads(msg.data)
+            check_json(payload, json.loads(schema.data), where)
+            assert payload["timestamp"]["sec"] * 10**9 + payload["timestamp"]["nsec"] == msg.log_time, where
+        seen.add(schema.name)
+    assert seen == FOXGLOVE | {mx.METRICS_SCHEMA_NAME}
+
+
+def test_a_message_with_an_undefined_field_fails_the_check():
+    """The exactness check can fail: bytes of a field number Log does not define are caught."""
+    cls = official_class("foxglove.Log")
+    good = cls(message="x").SerializeToString()
+    parse_exactly(cls, good)
+    with pytest.raises(AssertionError, match="does not define"):
+        parse_exactly(cls, good + b"\xa8\x06\x01")  # field 101, varint 1
+
+
+def test_timestamps_are_integer_ns_on_the_dt_grid(exported):
+    traces, _, summary, messages = exported
+    by = _by_topic(messages)
+    offsets = mx.episode_offsets(traces)
+    assert offsets == [int(m.metadata["offset_ns"]) for m in _metadata(exported[1])]
+    for t, off in zip(traces, offsets):
+        dt_ns = mx.step_ns(t.dt)
+        assert dt_ns == 100_000_000
+        grid = [off + k * dt_ns for k in range(t.num_steps)]
+        for name in PER_STEP:
+            assert [m.log_time for m in by[f"/{t.scenario_id}/{name}"]] == grid, name
+        met = [json.loads(m.data) for m in by[f"/{t.scenario_id}/metrics"]]
+        assert [d["t"] for d in met] == [k / 10 for k in range(t.num_steps)]  # 4.1, not 4.099999905
+    t0 = traces[0]
+    assert t0.num_steps > 41
+    assert by[f"/{t0.scenario_id}/tf"][41].log_time == offsets[0] + 4_100_000_000
+    assert offsets[1] == offsets[0] + (t0.num_steps - 1) * 100_000_000 + mx.EPISODE_GAP_NS
+    for t, off in zip(traces, offsets):  # an event at t s is stamped at step round(t / dt)
+        logs = by[f"/{t.scenario_id}/infractions"]
+        want = sorted(off + round(float(e["t"]) * 10) * 100_000_000 for e in t.events)
+        assert [m.log_time for m in logs] == want
+
+
+def _metadata(path: Path) -> list:
+    with path.open("rb") as f:
+        return [m for m in make_reader(f).iter_metadata() if m.name == "drivee2e.episode"]
+
+
+def test_step_stamps_come_from_the_step_index_not_float_times():
+    tr = SimpleNamespace(dt=0.1, num_steps=50)
+    stamps = mx.episode_stamps(tr, 7_000_000_000)
+    assert stamps[41] == 7_000_000_000 + 4_100_000_000 and all(type(s) is int for s in stamps)
+    assert mx.episode_offsets([tr, tr]) == [0, 49 * 100_000_000 + mx.EPISODE_GAP_NS]
+    assert mx.step_ns(0.05) == 50_000_000
+    assert mx.event_step({"t": float(np.float32(4.1))}, 0.1, 50) == 41
+    assert mx.event_step({"t": 99.0}, 0.1, 50) == 49 and mx.event_step({"t": -1.0}, 0.1, 50) == 0
 
 
 def test_payloads_carry_the_trace(exported):
     traces, _, _, messages = exported
-    offsets = mx.episode_offsets(traces)
-    assert offsets[1] > offsets[0] + traces[0].times[-1] * 1e9  # episodes one after another
+    by = _by_topic(messages)
+    log, scene_update, image, cloud = (official_class(f"foxglove.{n}") for n in ("Log", "SceneUpdate", "CompressedImage",
+                                                                                 "PointCloud"))
+    transform = official_class("foxglove.FrameTransform")
     from PIL import Image
 
-    for t, off in zip(traces, offsets):
+    for t in traces:
         p = f"/{t.scenario_id}"
-        by = {}
-        for _, _, topic, msg in messages:
-            by.setdefault(topic, []).append(msg)
-        tf = [json.loads(m.data) for m in by[f"{p}/tf"]]
-        np.testing.assert_allclose([[d["translation"]["x"], d["translation"]["y"]] for d in tf], t.ego_xy, atol=1e-5)
-        yaw = [2 * np.arctan2(d["rotation"]["z"], d["rotation"]["w"]) for d in tf]
+        tf = [transform.FromString(m.data) for m in by[f"{p}/tf"]]
+        assert {(d.parent_frame_id, d.child_frame_id) for d in tf} == {("world", "ego")}
+        np.testing.assert_allclose([[d.translation.x, d.translation.y] for d in tf], t.ego_xy, atol=1e-5)
+        yaw = [2 * np.arctan2(d.rotation.z, d.rotation.w) for d in tf]
         np.testing.assert_allclose(np.angle(np.exp(1j * (np.array(yaw) - t.ego_yaw))), 0, atol=1e-5)
-        assert [m.log_time for m in by[f"{p}/tf"]] == [off + int(round(x * 1e9)) for x in t.times]
         k = t.num_steps // 2
         # LiDAR: the packed points decode to the trace's valid returns.
-        pc = json.loads(by[f"{p}/lidar"][k].data)
-        pts = np.frombuffer(base64.b64decode(pc["data"]), mx._POINT_DTYPE)
+        pc = cloud.FromString(by[f"{p}/lidar"][k].data)
+        pts = np.frombuffer(pc.data, mx._POINT_DTYPE)
+        assert pc.point_stride == mx._POINT_DTYPE.itemsize == 13
+        assert [(f.name, f.offset, f.type) for f in pc.fields] == [("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("class", 12, 1)]
         ok = t.lidar_valid[k]
         np.testing.assert_array_equal(np.stack([pts["x"], pts["y"], pts["z"]], 1), t.lidar_points[k][ok])
         np.testing.assert_array_equal(pts["class"], t.lidar_class[k][ok])
         # BEV: the PNG decodes to the colour picture of the trace's channels.
-        img = json.loads(by[f"{p}/bev"][k].data)
-        rgb = np.asarray(Image.open(io.BytesIO(base64.b64decode(img["data"]))).convert("RGB"))
+        img = image.FromString(by[f"{p}/bev"][k].data)
+        rgb = np.asarray(Image.open(io.BytesIO(img.data)).convert("RGB"))
         np.testing.assert_array_equal(rgb, episodes.bev_rgb(t.bev, k))
         assert t.bev["ego"][k].any()
-        # Scene: one cube per valid agent; metrics: the timeline values.
-        scene = json.loads(by[f"{p}/scene"][k].data)
-        agents = next(e for e in scene["entities"] if e["id"] == "agents")
-        assert len(agents["cubes"]) == int(t.agents.valid[k].sum())
-        plan = next(e for e in scene["entities"] if e["id"] == "plan")["lines"][0]["points"]
-        np.testing.assert_allclose([[q["x"], q["y"]] for q in plan[1:]], t.plan_xy[k], atol=1e-5)
+        # Scene: one cube per valid agent, the plan; the map: one entity per layer, for the whole episode.
+        scene = scene_update.FromString(by[f"{p}/scene"][k].data)
+        ents = {e.id: e for e in scene.entities}
+        assert len(ents["agents"].cubes) == int(t.agents.valid[k].sum())
+        assert ents["ego"].cubes[0].size.x == pytest.approx(float(t.ego_size[0]))
+        plan = ents["plan"].lines[0].points
+        np.testing.assert_allclose([[q.x, q.y] for q in plan[1:]], t.plan_xy[k], atol=1e-5)
+        (map_msg,) = by[f"{p}/map"]
+        layers = {e.id: e for e in scene_update.FromString(map_msg.data).entities}
+        assert set(layers) == {"drivable", "lanes", "boundaries", "crosswalks", "stop_lines", "obstacles", "route"}
+        assert len(layers["lanes"].lines) == len(t.map.lanes)
+        assert to_ns(layers["route"].lifetime) == t.num_steps * mx.step_ns(t.dt)
+        np.testing.assert_allclose([[q.x, q.y] for q in layers["route"].lines[0].points], t.route_xy, atol=1e-9)
         met = json.loads(by[f"{p}/metrics"][-1].data)
         assert met["route_completion"] == pytest.approx(float(t.timeline["route_completion"][-1]))
-        logs = [json.loads(m.data)["message"] for m in by[f"{p}/infractions"]]
+        logs = [log.FromString(m.data).message for m in by[f"{p}/infractions"]]
         assert [s.split(" at ")[0] for s in logs] == [e["type"] for e in sorted(t.events, key=lambda e: e["t"])]
+
+
+def test_help_examples_name_what_bench_writes_by_default():
+    """The --help examples read results/twin15-val (bench's default --out for --split val) and name
+    scenarios among the first 5 of twin15's val split, so they run after `drivee2e bench --split val --limit 5`."""
+    lines = [ln.split() for ln in EPILOG.splitlines() if ln.strip().startswith("drivee2e export-mcap")]
+    assert len(lines) >= 2 and {ln[2] for ln in lines} == {"results/twin15-val"}
+    named = {ln[i + 1] for ln in lines for i, a in enumerate(ln) if a == "--scenario"}
+    suite = load_suite("twin15")
+    first_val = {str(suite.meta.scenario_id[i]) for i in suite.split_rows("val")[:5]}
+    assert named and named <= first_val, sorted(named - first_val)
 
 
 def test_cli_exports_and_refuses_to_overwrite(run_dir, tmp_path, capsys):

@@ -26,7 +26,7 @@ from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.viz import payload
 
 REPO = Path(__file__).resolve().parents[2]
-TINY = REPO / "scenarios" / "examples" / "tiny"
+TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,10 +149,10 @@ def test_mcap_topics_follow_the_display(toys):
     assert mx.topics(tr)["/s0/gauge"] == "foxglove.CompressedImage"
     assert mx.topics(tr)["/s0/beacon"] == "foxglove.PointCloud"
     img = mx.sensor_message(tr, "gauge", 4, 7)
-    rgb = np.asarray(Image.open(io.BytesIO(base64.b64decode(img["data"]))).convert("RGB"))
-    assert img["format"] == "png" and (rgb == 255).all()
+    rgb = np.asarray(Image.open(io.BytesIO(img.data)).convert("RGB"))
+    assert img.format == "png" and (rgb == 255).all()
     cloud = mx.sensor_message(tr, "beacon", 0, 7)
-    pts = np.frombuffer(base64.b64decode(cloud["data"]), mx._POINT_DTYPE)
+    pts = np.frombuffer(cloud.data, mx._POINT_DTYPE)
     assert pts["x"].tolist() == [5.0] and pts["class"].tolist() == [1]
 
 
