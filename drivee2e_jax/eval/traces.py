@@ -44,7 +44,7 @@ import base64
 import dataclasses
 import json
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -59,7 +59,7 @@ from drivee2e_jax.geometry import from_frame
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import registry
 from drivee2e_jax.observe import sensors as sensors_mod
-from drivee2e_jax.observe.bev import BevConfig, unpack_bits
+from drivee2e_jax.observe.bev import BevConfig
 from drivee2e_jax.observe.lidar import LidarConfig
 from drivee2e_jax.observe.palette import bev_rgb
 from drivee2e_jax.observe.png import png_bytes
@@ -75,6 +75,8 @@ from drivee2e_jax.types import Waypoints, to_numpy
 TRACE_SENSORS = ("bev", "lidar")
 #: |re-simulated - stored| Driving Score above which a trace counts as not reproduced.
 DS_TOLERANCE = 1e-3
+#: Episodes whose sensor frames ``iter_traces`` renders per compiled call (and holds at once).
+TRACE_CHUNK = 8
 
 
 def default_sensor_config(sensors: Sequence[str] = TRACE_SENSORS):
@@ -188,7 +190,7 @@ class EpisodeTrace:
       resim_events: the same extracted from the re-simulation.
       driving_score, stored_driving_score: re-simulated and stored DS.
       reproduced: |difference| <= DS_TOLERANCE.
-      bev: {channel: (T, H, W) bool} or None; image row 0 is farthest ahead,
+      bev: {channel: (T, H, W) bool} (a ``PackedBev``) or None; image row 0 is farthest ahead,
         column 0 on the ego's left (``observe.bev``).  bev_resolution: m/px.
       lidar_points: (T, N, 3) float32 returns in the ego frame (origin at the
         box centre on the ground, x forward, y left, z up), m, or None.
@@ -198,6 +200,10 @@ class EpisodeTrace:
         registered sensor traced (``Sensor.trace`` per instant, leading axis
         T, and its config); shown by the player and the MCAP export as the
         sensor's ``display`` says.
+      sensor_stride: ``bev`` and ``sensors`` hold instants 0, s, 2s, ...
+        only: ceil(T / s) frames, frame i at ``times[i * s]`` (1: every
+        instant; ``iter_traces(sensor_stride=s)``).
+      lidar_stride: the same for ``lidar_*``.
     """
 
     scenario_id: str
@@ -235,6 +241,8 @@ class EpisodeTrace:
     lidar_class: np.ndarray | None = None
     lidar_valid: np.ndarray | None = None
     sensors: dict = dataclasses.field(default_factory=dict)
+    sensor_stride: int = 1
+    lidar_stride: int = 1
 
     @property
     def num_steps(self) -> int:
@@ -276,6 +284,17 @@ def read_run(results_dir: str | Path, policy: str | None = None) -> RunRecord:
         spec = RunSpec.from_json(info)
     except DriveE2EError as e:
         raise DriveE2EError(f"{meta}: {e}") from e
+    files = _policy_files(path)
+    order = list(files)
+    name = order[0] if policy is None else policy
+    if name not in files:
+        raise DriveE2EError(f"--policy {policy}: not in {path} (expected one of {', '.join(order)})")
+    return RunRecord(path=path, info=info, policy=name, data=files[name], spec=spec)
+
+
+def _policy_files(path: Path) -> dict[str, dict]:
+    """{policy name: its ``policies/<name>.json``} of a results folder, in the
+    run's order (summary.json's, else by file name). Raises DriveE2EError when none."""
     files = {}
     for f in sorted((path / "policies").glob("*.json")):
         data = _read_json(f)
@@ -286,10 +305,18 @@ def read_run(results_dir: str | Path, policy: str | None = None) -> RunRecord:
     if (path / "summary.json").is_file():
         listed = list(_read_json(path / "summary.json").get("policies", {}))
         order = [p for p in listed if p in files] + [p for p in order if p not in listed]
-    name = order[0] if policy is None else policy
-    if name not in files:
-        raise DriveE2EError(f"--policy {policy}: not in {path} (expected one of {', '.join(order)})")
-    return RunRecord(path=path, info=info, policy=name, data=files[name], spec=spec)
+    return {p: files[p] for p in order}
+
+
+def run_policies(results_dir: str | Path) -> list[str]:
+    """The finished policies of a results folder, in the run's order.
+    Raises DriveE2EError (one line) on a folder that is not a finished run."""
+    return list(_policy_files(read_run(results_dir).path))
+
+
+def run_scenarios(results_dir: str | Path, policy: str | None = None) -> list[str]:
+    """Scenario ids of ``policy``'s stored rows (the first repetition), in run order."""
+    return list(stored_rows(read_run(results_dir, policy)))
 
 
 def _read_json(path: Path) -> Any:
@@ -368,28 +395,94 @@ def trace_episodes(
         that sees none (``trace_bev_sensors``).
       limit: only the first N chosen scenarios.
 
-    Raises DriveE2EError (one line) on a bad folder, policy or scenario id.
-    Warns when a re-simulated Driving Score differs from the stored one.
+    Every trace is held at once: for many episodes with sensors use
+    ``iter_traces`` (a chunk at a time). Raises DriveE2EError (one line) on a
+    bad folder, policy or scenario id. Warns when a re-simulated Driving
+    Score differs from the stored one.
     """
+    return list(iter_traces(results_dir, policy, scenario_ids, sensors=sensors, sensor_config=sensor_config,
+                            limit=limit))
+
+
+def iter_traces(
+    results_dir: str | Path,
+    policy: str | None = None,
+    scenario_ids: Sequence[str] | None = None,
+    *,
+    sensors: Sequence[str] = TRACE_SENSORS,
+    sensor_config=None,
+    limit: int | None = None,
+    chunk_size: int = TRACE_CHUNK,
+    sensor_stride: int = 1,
+    lidar_stride: int | None = None,
+) -> Iterator[EpisodeTrace]:
+    """``trace_episodes`` as a stream: the run is re-simulated once (small:
+    ego states and step logs), then sensor frames are rendered and traces
+    assembled ``chunk_size`` episodes at a time (one compiled call a chunk;
+    the next chunk renders while this one is handed out), so at most two
+    chunks of frames are held; each trace is yielded as soon as it is
+    assembled (drop it to free it).
+
+    Args (others as ``trace_episodes``):
+      chunk_size: episodes whose frames are rendered per call (>= 1).
+      sensor_stride: render the BEV and other sensors only at every s-th
+        instant (``EpisodeTrace.sensor_stride``; agents and signals keep every one).
+      lidar_stride: the same for the LiDAR (default: ``sensor_stride``).
+
+    Bad arguments raise DriveE2EError here, before anything is simulated;
+    the simulation runs at the first ``next()``.
+    """
+    lidar_stride = sensor_stride if lidar_stride is None else lidar_stride
+    if min(int(chunk_size), int(sensor_stride), int(lidar_stride)) < 1:
+        raise DriveE2EError(f"iter_traces: chunk_size, sensor_stride and lidar_stride must be >= 1, got "
+                            f"{chunk_size}, {sensor_stride}, {lidar_stride}")
     run = read_run(results_dir, policy)
     suite, packed = _run_packed(run)
     rows = select_rows(packed.meta.scenario_id, scenario_ids)
     if limit is not None:
         rows = rows[: max(int(limit), 0)]
     sensor_cfg = sensor_config if sensor_config is not None else default_sensor_config(tuple(sensors))
+    return _stream(run, suite, packed, rows, sensor_cfg, int(chunk_size), int(sensor_stride), int(lidar_stride))
+
+
+def _stream(run: RunRecord, suite, packed, rows: np.ndarray, sensor_cfg, chunk: int, stride: int, lidar_stride: int):
+    """The generator behind ``iter_traces``: chunk k + 1's frames render
+    (asynchronously) while chunk k's traces are assembled and consumed, so at
+    most two chunks of frames and one trace are held."""
+    if not len(rows):
+        return
     sim_out = _simulate(_load_run_policy(run), _run_settings(run), suite, packed, rows)
     stored = stored_rows(run)
-    bev_sim, frames = _frames(sim_out, suite, packed, rows, sensor_cfg)
-    bev_cfg = None if bev_sim is None else bev_sim.config.sensors.bev
-    traces = []
-    for j, row in enumerate(rows):
-        sid = str(packed.meta.scenario_id[row])
-        tr = _episode_trace(run, packed, int(row), j, sim_out, frames, stored.get(sid, {}), bev_cfg, sensor_cfg)
-        if not tr.reproduced:
-            warnings.warn(f"{sid}: re-simulated driving score {tr.driving_score:.4f} differs from the stored "
-                          f"{tr.stored_driving_score:.4f} ({run.path})", stacklevel=2)
-        traces.append(tr)
-    return traces
+    render = FrameRenderer(sim_out, suite, packed, sensor_cfg, chunk, stride, lidar_stride)
+    bev_cfg = None if render.bev_sim is None else render.bev_sim.config.sensors.bev
+    starts = range(0, len(rows), chunk)
+    part = _chunk(sim_out, packed, rows, 0, chunk)
+    started = render.start(part)
+    for j0 in starts:
+        nxt = _chunk(sim_out, packed, rows, j0 + chunk, j0 + 2 * chunk) if j0 + chunk < len(rows) else None
+        ahead = None if nxt is None else render.start(nxt)  # dispatched before this chunk is waited for
+        frames = render.finish(part, started)
+        for j, row in enumerate(part["rows"]):
+            sid = str(packed.meta.scenario_id[row])
+            tr = _episode_trace(run, packed, int(row), j, part, frames, stored.get(sid, {}), bev_cfg, sensor_cfg,
+                                stride, lidar_stride)
+            if not tr.reproduced:
+                warnings.warn(f"{sid}: re-simulated driving score {tr.driving_score:.4f} differs from the stored "
+                              f"{tr.stored_driving_score:.4f} ({run.path})", stacklevel=2)
+            yield tr
+        part, started = nxt, ahead
+        del frames
+
+
+def _chunk(sim_out: dict, packed, rows: np.ndarray, a: int, b: int) -> dict:
+    """``sim_out`` restricted to chosen rows ``a:b`` (chunk-local index j), with
+    their numpy ``Scenario`` rows gathered from ``packed`` ("batch")."""
+    sl = lambda tree: jax.tree_util.tree_map(lambda x: x[a:b], tree)  # noqa: E731
+    part = rows[a:b]
+    return {**sim_out, "rows": part, "ctx": sl(sim_out["ctx"]), "states": sl(sim_out["states"]),
+            "logs": sl(sim_out["logs"]), "actions": None if sim_out["actions"] is None else sl(sim_out["actions"]),
+            "driving_score": sim_out["driving_score"][a:b],
+            "batch": jax.tree_util.tree_map(lambda x: np.asarray(x)[part], packed.scenario)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -434,8 +527,8 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     len(rows)): "ctx" ``sim.SimContext``, "states" ``SimState`` without ctx
     with axis 1 = T_pad + 1 instants (the reset state, then the state after
     every step), "logs" ``StepLog`` (T_pad steps), "actions" the applied
-    actions (T_pad steps; None for a controls policy), "driving_score" (len(rows),),
-    "batch" the numpy ``Scenario`` rows}.
+    actions (T_pad steps; None for a controls policy), "driving_score" (len(rows),)}
+    (``_chunk`` adds the chunk's numpy ``Scenario`` rows, "batch").
     """
 
     pol = hostbridge.wrap(pol)  # a host policy: the same host calls as the bench made
@@ -447,9 +540,11 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     batch, meta = device_batch(packed)
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(settings.seed)
-    params = init_params(pol, sim, batch, key, assets)
-    hostbridge.begin(pol, meta, batch, lambda: first_observation(sim, batch, key, assets))
-    total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+    # The first observation from the numpy rows: slicing the device batch
+    # leaf by leaf compiles one op per leaf (seconds on a CPU).
+    params = init_params(pol, sim, packed.scenario, key, assets)
+    hostbridge.begin(pol, meta, batch, lambda: first_observation(sim, packed.scenario, key, assets))
+    total = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(batch))))
     chunk = balanced_chunk(total, 50, settings.timing.control_every)  # as evaluate chunks it
     ro = TracingRollout(sim, pol, params, timing=settings.timing, chunk=chunk, assets=assets)
     pick = lambda tree: jax.tree_util.tree_map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
@@ -464,7 +559,9 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     logs, actions, states = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *chunks)
     states = jax.tree_util.tree_map(lambda a, b: np.concatenate([a[:, None], b], axis=1),
                                     first.replace(ctx=None), states)
-    res = jax.vmap(ep.finalize, in_axes=(0, 0, None))(carry.sim.episode, batch.route, cfg.score)
+    # One compiled call, not op by op (eager vmap compiles every primitive).
+    res = jax.jit(lambda e, r: jax.vmap(ep.finalize, in_axes=(0, 0, None))(e, r, cfg.score))(
+        carry.sim.episode, batch.route)
     return {
         "sim": sim,
         "assets": assets,
@@ -473,7 +570,6 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
         "logs": logs,
         "actions": actions if pol.action_type == "waypoints" else None,
         "driving_score": np.asarray(res.driving_score)[rows],
-        "batch": pick(packed.scenario),
     }
 
 
@@ -500,34 +596,65 @@ def trace_bev_sensors(policy_sensors, sensor_cfg):
     return SensorConfig(bev=sensor_cfg.bev, scene=sensor_cfg.scene, raster_resolution=sensor_cfg.raster_resolution)
 
 
-def _frame_fn(sim, bev_sim, sensor_cfg):
-    """jit(vmap over time) of one scenario's replayed agents, signals and
-    sensors: the BEV is ``bev_sim.observe(...).bev`` of each traced state
-    (exactly the policy's observation when ``bev_sim`` is the rollout's
-    simulator), the LiDAR a point cloud of ``sensor_cfg.lidar``, every other
-    sensor of ``sensor_cfg`` its ``Sensor.trace`` (key ``sensor.<name>``)."""
+def _frame_fns(sim, bev_sim, sensor_cfg) -> dict:
+    """Per-instant functions of one scenario's state, by group (a group is
+    left out when it has nothing to render): "base" the replayed agents and
+    signals; "sensors" the BEV (``bev_sim.observe(...).bev``, exactly the
+    policy's observation when ``bev_sim`` is the rollout's simulator) and
+    every other sensor's ``Sensor.trace`` (key ``sensor.<name>``); "lidar" the
+    LiDAR point cloud of ``sensor_cfg.lidar`` (its own stride: the heaviest)."""
 
     others = [n for n in sensor_cfg.enabled if n not in registry.SLOTTED]
 
-    def one(scenario, ctx, state, assets):
+    def base(scenario, ctx, state, assets):
+        t = state.ego.t
+        return {"agents": sim.agents(scenario, t), "signals": replay.signals_at(scenario.signals, t, scenario.dt_log)}
+
+    def context(scenario, ctx, state, assets):
+        seen = base(scenario, ctx, state, assets)
+        return SensorContext(scenario=scenario, ego=state.ego, ego_lw=ctx.ego_lw, agents=seen["agents"],
+                             stop_state=seen["signals"], route_index=ep.route_index(state.episode), assets=assets,
+                             key=state.obs_key, scene=sensor_cfg.scene)
+
+    def sensors(scenario, ctx, state, assets):
         state = state.replace(ctx=ctx)
-        ego = state.ego
-        seen = sim.agents(scenario, ego.t)
-        signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
-        out = {"agents": seen, "signals": signals}
+        out = {}
         if bev_sim is not None:
             out["bev"] = bev_sim.observe(scenario, state, assets).bev
-        sctx = SensorContext(scenario=scenario, ego=ego, ego_lw=ctx.ego_lw, agents=seen, stop_state=signals,
-                             route_index=ep.route_index(state.episode), assets=assets, key=state.obs_key,
-                             scene=sensor_cfg.scene)
-        if sensor_cfg.lidar is not None:
-            scan = registry.get("lidar").trace(sctx, sensor_cfg.lidar)
-            out["lidar_points"], out["lidar_class"], out["lidar_valid"] = scan["points"], scan["hit_class"], scan["valid"]
+        sctx = context(scenario, ctx, state, assets)
         for n in others:
             out[f"sensor.{n}"] = registry.get(n).trace(sctx.for_sensor(n), sensor_cfg.get(n))
         return out
 
-    return jax.jit(jax.vmap(one, in_axes=(None, None, 0, None)))
+    def lidar(scenario, ctx, state, assets):
+        scan = registry.get("lidar").trace(context(scenario, ctx, state.replace(ctx=ctx), assets), sensor_cfg.lidar)
+        return {"lidar_points": scan["points"], "lidar_class": scan["hit_class"], "lidar_valid": scan["valid"]}
+
+    fns = {"base": base}
+    if bev_sim is not None or others:
+        fns["sensors"] = sensors
+    if sensor_cfg.lidar is not None:
+        fns["lidar"] = lidar
+    return fns
+
+
+def _over_chunk(one):
+    """jit of ``one`` (scenario, ctx, state, assets) over a chunk of episodes
+    (``lax.map``: one episode's intermediates at a time) and each episode's
+    instants (``vmap``). Takes (batch (C, ...), ctx (C, ...), states (C, T, ...),
+    assets with map_index (C,) or None)."""
+    per_episode = jax.vmap(one, in_axes=(None, None, 0, None))
+
+    def run(batch, ctx, states, assets):
+        index = None if assets is None else assets.map_index
+
+        def body(x):
+            sc, cx, st, mi = x
+            return per_episode(sc, cx, st, None if assets is None else assets.replace(map_index=mi))
+
+        return jax.lax.map(body, (batch, ctx, states, index))
+
+    return jax.jit(run)
 
 
 def _row(tree, i: int):
@@ -536,32 +663,90 @@ def _row(tree, i: int):
     return jax.tree_util.tree_map(lambda a: a[i], tree)
 
 
-def _frames(sim_out: dict, suite, packed, rows: np.ndarray, sensor_cfg):
-    """(the Simulator the BEV frames come from or None, per chosen episode:
-    numpy frames over the padded trace length (one compile))."""
+def _pad_rows(tree, n: int):
+    """A batched pytree padded to ``n`` rows with copies of its last row (one compile per chunk size)."""
+    b = int(jax.tree_util.tree_leaves(tree)[0].shape[0])
+    if b >= n:
+        return tree
+    idx = np.r_[np.arange(b), np.full(n - b, b - 1)]
+    return jax.tree_util.tree_map(lambda a: np.asarray(a)[idx], tree)
 
-    sim = sim_out["sim"]
-    bev_sensors = trace_bev_sensors(sim.config.sensors, sensor_cfg)
-    if bev_sensors is None:
-        bev_sim, assets = None, None
-    elif sim.config.sensors.bev is not None:  # the policy sees a BEV: trace_bev_sensors kept its own
-        bev_sim, assets = sim, sim_out["assets"]
-    else:
-        bev_sim = Simulator(dataclasses.replace(sim.config, sensors=bev_sensors))
-        assets = sensors_mod.build_assets(packed, bev_sensors, suite.maps)
-    if assets is None and sensor_cfg.needs_raster:  # another registered sensor reads the map rasters
-        assets = sensors_mod.build_assets(packed, sensor_cfg, suite.maps)
-    fn = _frame_fn(sim, bev_sim, sensor_cfg)
-    out = []
-    for j, row in enumerate(rows):
-        a = None if assets is None else assets.replace(map_index=np.asarray(assets.map_index)[row])
-        out.append(to_numpy(fn(_row(sim_out["batch"], j), _row(sim_out["ctx"], j), _row(sim_out["states"], j), a)))
-    return bev_sim, out
+
+class FrameRenderer:
+    """Renders a chunk of episodes' per-instant frames (``_chunk`` output),
+    one compiled call per group of ``_frame_fns``: agents and signals at
+    every instant, the BEV and other sensors at every ``stride``-th instant
+    (0, s, 2s, ...), the LiDAR at every ``lidar_stride``-th. ``start`` only
+    dispatches the calls (JAX runs them asynchronously), ``finish`` waits for
+    them, so the host can assemble one chunk while the next one renders.
+    ``bev_sim``: the Simulator the BEV frames come from (None: no BEV)."""
+
+    def __init__(self, sim_out: dict, suite, packed, sensor_cfg, chunk: int, stride: int, lidar_stride: int):
+        sim = sim_out["sim"]
+        bev_sensors = trace_bev_sensors(sim.config.sensors, sensor_cfg)
+        if bev_sensors is None:
+            bev_sim, assets = None, None
+        elif sim.config.sensors.bev is not None:  # the policy sees a BEV: trace_bev_sensors kept its own
+            bev_sim, assets = sim, sim_out["assets"]
+        else:
+            bev_sim = Simulator(dataclasses.replace(sim.config, sensors=bev_sensors))
+            assets = sensors_mod.build_assets(packed, bev_sensors, suite.maps)
+        if assets is None and sensor_cfg.needs_raster:  # another registered sensor reads the map rasters
+            assets = sensors_mod.build_assets(packed, sensor_cfg, suite.maps)
+        self.bev_sim, self.assets, self.chunk = bev_sim, assets, chunk
+        self.strides = {"base": 1, "sensors": stride, "lidar": lidar_stride}
+        self.fns = {k: _over_chunk(f) for k, f in _frame_fns(sim, bev_sim, sensor_cfg).items()}
+
+    def start(self, part: dict) -> dict:
+        """Dispatch the chunk's calls; returns {group: device outputs}."""
+        assets = None if self.assets is None else self.assets.replace(
+            map_index=_pad_rows(np.asarray(self.assets.map_index)[part["rows"]], self.chunk))
+        batch, ctx, states = (_pad_rows(part[k], self.chunk) for k in ("batch", "ctx", "states"))
+        return {k: fn(batch, ctx, jax.tree_util.tree_map(lambda a, s=self.strides[k]: a[:, ::s], states), assets)
+                for k, fn in self.fns.items()}
+
+    def finish(self, part: dict, started: dict) -> list[dict]:
+        """Per episode of ``part``: numpy frames {agents, signals: (T_pad + 1, ...),
+        bev / sensor.<name>: every ``stride``-th instant, lidar_*: every ``lidar_stride``-th}."""
+        out = {}
+        for group in started.values():
+            out.update(to_numpy(group))
+        return [_row(out, j) for j in range(len(part["rows"]))]
+
+    def __call__(self, part: dict) -> list[dict]:
+        """``finish(part, start(part))``."""
+        return self.finish(part, self.start(part))
 
 
 # --------------------------------------------------------------------------
 # Assembling one trace
 # --------------------------------------------------------------------------
+
+
+class PackedBev(Mapping):
+    """{channel: (F, H, W) bool} of bit-packed BEV frames: ``bits (F, H, W)``
+    int, bit i = channel ``names[i]`` (``observe.bev``). A channel is unpacked
+    (numpy, then kept) when first read, so a consumer of the packed ``bits``
+    (the player's sprite sheet) never pays for F x H x W x C booleans."""
+
+    def __init__(self, bits, names: Sequence[str]):
+        self.bits = np.asarray(bits)
+        self.names = tuple(names)
+        self._planes: dict[str, np.ndarray] = {}
+
+    def __getitem__(self, channel: str) -> np.ndarray:
+        if channel not in self._planes:
+            i = self.names.index(channel) if channel in self.names else None
+            if i is None:
+                raise KeyError(channel)
+            self._planes[channel] = ((self.bits >> i) & 1).astype(bool)
+        return self._planes[channel]
+
+    def __iter__(self):
+        return iter(self.names)
+
+    def __len__(self) -> int:
+        return len(self.names)
 
 
 def _polys(lines, keep=None) -> list:
@@ -605,10 +790,12 @@ def _timeline(log, n: int, ego_speed: np.ndarray, rc0: float) -> dict:
 
 
 def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, frames: list, stored: dict,
-                   bev_cfg, sensor_cfg=None) -> EpisodeTrace:
+                   bev_cfg, sensor_cfg=None, stride: int = 1, lidar_stride: int = 1) -> EpisodeTrace:
     """Trace of chosen row ``j`` (packed row ``row``); ``bev_cfg``: the
     ``BevConfig`` of ``frames``' BEV (None: no BEV); ``sensor_cfg``: the
-    trace's ``SensorConfig`` (configs of the other sensors' frames)."""
+    trace's ``SensorConfig`` (configs of the other sensors' frames);
+    ``stride``, ``lidar_stride``: the sensor / LiDAR frames hold every
+    stride-th instant."""
 
     log = _row(sim_out["logs"], j)
     n = _episode_length(np.asarray(log.active))
@@ -616,6 +803,7 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
     sc = _row(sim_out["batch"], j)
     ego = _row(sim_out["states"], j).ego  # (T_pad + 1,) instants
     cut = lambda a: np.asarray(a)[:t_len]  # noqa: E731
+    cut_s = lambda a, s=stride: np.asarray(a)[: -(-t_len // s)]  # noqa: E731  sensor instants 0, s, 2s, ... < t_len
     fr = frames[j]
     meta = {k: str(getattr(packed.meta, k)[row]) for k in
             ("split", "intersection_id", "map_id", "behavior", "weather", "time_of_day")}
@@ -680,19 +868,17 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
         stored_driving_score=stored_ds,
         reproduced=bool(abs(ds - stored_ds) <= DS_TOLERANCE),
     )
+    trace.sensor_stride, trace.lidar_stride = int(stride), int(lidar_stride)
     if "bev" in fr:
-
-        names = bev_cfg.channel_names
-        bits = np.asarray(unpack_bits(cut(fr["bev"]), len(names))) > 0.5
-        trace.bev = {c: bits[..., i] for i, c in enumerate(names)}
+        trace.bev = PackedBev(cut_s(fr["bev"]), bev_cfg.channel_names)
         trace.bev_resolution = float(bev_cfg.resolution)
     if "lidar_points" in fr:
-        trace.lidar_points = cut(fr["lidar_points"]).astype(np.float32)
-        trace.lidar_class = cut(fr["lidar_class"]).astype(np.int8)
-        trace.lidar_valid = cut(fr["lidar_valid"])
+        trace.lidar_points = cut_s(fr["lidar_points"], lidar_stride).astype(np.float32)
+        trace.lidar_class = cut_s(fr["lidar_class"], lidar_stride).astype(np.int8)
+        trace.lidar_valid = cut_s(fr["lidar_valid"], lidar_stride)
     for name in () if sensor_cfg is None else sensor_cfg.enabled:  # registry order
         if f"sensor.{name}" in fr:
-            frames = jax.tree_util.tree_map(cut, fr[f"sensor.{name}"])
+            frames = jax.tree_util.tree_map(cut_s, fr[f"sensor.{name}"])
             trace.sensors[name] = SensorFrames(config=sensor_cfg.get(name), frames=frames)
     return trace
 
@@ -722,7 +908,8 @@ def _nan_to_none(x):
 def to_jsonable(trace: EpisodeTrace, *, bev: bool = False, lidar_stride: int = 0) -> dict:
     """A compact JSON-ready dict of ``trace`` (lists, floats rounded: positions
     to cm, angles to mrad; non-finite -> null). Sensors are left out unless
-    asked: ``bev=True`` adds ``bev_png``: T base64 PNGs of ``bev_rgb`` (the
+    asked: ``bev=True`` adds ``bev_png``: one base64 PNG per sensor frame
+    (T, or ceil(T / ``trace.sensor_stride``)) of ``bev_rgb`` (the
     shared palette of ``observe.palette``; row 0 farthest ahead) and ``bev_resolution``;
     ``lidar_stride=s`` adds ``lidar``: T dicts {xyz: every s-th valid return
     (ego frame, m), class: its hit class}.
@@ -772,7 +959,7 @@ def to_jsonable(trace: EpisodeTrace, *, bev: bool = False, lidar_stride: int = 0
     }
     if bev and trace.bev is not None:
         out["bev_png"] = [base64.b64encode(png_bytes(bev_rgb(trace.bev, k))).decode("ascii")
-                          for k in range(trace.num_steps)]
+                          for k in range(len(next(iter(trace.bev.values()))))]
         out["bev_resolution"] = trace.bev_resolution
     if lidar_stride and trace.lidar_points is not None:
         s = int(lidar_stride)

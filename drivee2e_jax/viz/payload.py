@@ -1,4 +1,4 @@
-"""One ``io.episodes.EpisodeTrace`` -> the episode record the HTML player reads.
+"""One ``eval.traces.EpisodeTrace`` -> the episode record the HTML player reads.
 
 Host side only. An episode record (all coordinates world frame, m, rounded to
 1 cm; ``flat`` = ``[x0, y0, x1, y1, ...]``; frame ``k`` is ``trace.times[k]``)::
@@ -12,7 +12,9 @@ Host side only. An episode record (all coordinates world frame, m, rounded to
     signals: [S][n] ``SignalState`` values, one row per map stop line,
     metrics: [{name, label, unit, values: [n], range?: [lo, hi], color?}],
     events:  [{type, t, x, y, frame, ...}]  the stored infraction events,
-    bev:     {stride, channels, colors, frames: [PNG data URI]} or null,
+    bev:     {stride, channels, colors, h, w, count, sheet: PNG data URI} or null:
+             ``count`` frames of h x w pixels stacked top to bottom in one
+             palette PNG (frame k = rows k*h .. (k+1)*h),
     lidar:   {stride, range, scale, frames: [{xy, c}]} or null  (``encode``),
     sensors: [{name, display: "image", stride, frames: [PNG data URI]} or
               {name, display: "pointcloud", stride, range, scale, frames: [{xy, c}]}]
@@ -20,11 +22,14 @@ Host side only. An episode record (all coordinates world frame, m, rounded to
              their ``observe.registry`` entry's ``display`` says; "none" left out).
 
 Sensor frames are kept every ``stride`` frames (the player shows the latest
-one at or before the current frame) to keep the file small.
+one at or before the current frame) to keep the file small; a trace that
+holds only every s-th instant's frames (``EpisodeTrace.sensor_stride``) gets
+a stride rounded to a multiple of s.
 """
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
 from drivee2e_jax.observe import registry
@@ -62,7 +67,7 @@ def enum_meta() -> dict:
 
 
 def map_payload(smap) -> dict:
-    """``io.episodes.StaticMap`` -> the player's map record."""
+    """``eval.traces.StaticMap`` -> the player's map record."""
     flat = lambda polys: [f for f in (encode.flat_points(p) for p in polys) if len(f) >= 4]  # noqa: E731
     return {
         "drivable": flat(smap.drivable),
@@ -76,7 +81,7 @@ def map_payload(smap) -> dict:
 
 
 def agents_payload(agents) -> list[dict]:
-    """``io.episodes.AgentsTrace`` -> one compact record per agent seen at least once."""
+    """``eval.traces.AgentsTrace`` -> one compact record per agent seen at least once."""
     out = []
     for a in range(agents.track_id.shape[0]):
         ok = np.asarray(agents.valid[:, a], bool)
@@ -131,26 +136,47 @@ def events_payload(events: list[dict], times: np.ndarray) -> list[dict]:
     return sorted(out, key=lambda e: e["frame"])
 
 
+def _sensor_step(trace, stride: int, attr: str = "sensor_stride") -> tuple[int, int]:
+    """(take every ``step``-th stored sensor frame, the effective stride in
+    instants): ``stride`` instants rounded up to a multiple of the trace's own
+    ``sensor_stride`` / ``lidar_stride`` (``attr``: a trace may hold only
+    every s-th instant's frames)."""
+    s = max(1, int(getattr(trace, attr, 1) or 1))
+    step = max(1, -(-int(stride) // s))  # rounded up: never more frames than asked for
+    return step, step * s
+
+
 def bev_payload(trace, stride: int) -> dict | None:
+    """The BEV as ONE sprite sheet per episode: its kept frames stacked
+    top to bottom in a palette PNG (``encode.bev_sheet_uri``); frame k is rows
+    ``k * h .. (k + 1) * h``. A few large PNGs encode and load much faster
+    than one per frame."""
     if not trace.bev:
         return None
+    step, eff = _sensor_step(trace, stride)
     channels = list(trace.bev)
-    stack = np.stack([np.asarray(trace.bev[c]) for c in channels], axis=-1)  # (T, H, W, C)
-    frames = [encode.png_data_uri(encode.composite_bev(stack[k], channels)) for k in range(0, len(stack), stride)]
+    bits = getattr(trace.bev, "bits", None)  # ``eval.traces.PackedBev``: straight from the packed bits
+    if bits is not None:
+        index = encode.bev_index_from_bits(np.asarray(bits)[::step], len(channels))
+    else:
+        index = encode.bev_index([np.asarray(trace.bev[c])[::step] for c in channels])
+    count, h, w = index.shape
     colours = ["rgb({},{},{})".format(*encode.BEV_COLORS.get(c.partition("@")[0], (128, 128, 128)))
                for c in channels]
-    return {"stride": stride, "channels": channels, "colors": colours, "frames": frames}
+    return {"stride": eff, "channels": channels, "colors": colours, "h": int(h), "w": int(w), "count": int(count),
+            "sheet": encode.bev_sheet_uri(index, channels)}
 
 
 def lidar_payload(trace, stride: int, max_points: int, seed: int = 0) -> dict | None:
     if trace.lidar_points is None:
         return None
     rng = np.random.default_rng(seed)
+    step, eff = _sensor_step(trace, stride, "lidar_stride")
     pts, cls, ok = trace.lidar_points, trace.lidar_class, trace.lidar_valid
     frames = [encode.encode_lidar_points(pts[k, ok[k], :2], cls[k, ok[k]], max_points, rng)
-              for k in range(0, len(pts), stride)]
+              for k in range(0, len(pts), step)]
     reach = np.abs(pts[..., :2][ok]).max() if ok.any() else 1.0
-    return {"stride": stride, "range": float(np.ceil(min(reach, 100.0))), "scale": encode.LIDAR_SCALE,
+    return {"stride": eff, "range": float(np.ceil(min(reach, 100.0))), "scale": encode.LIDAR_SCALE,
             "frames": frames}
 
 
@@ -164,14 +190,16 @@ def sensor_panes(trace, image_stride: int, points_stride: int, max_points: int, 
         if name not in registry.names():
             continue
         sensor = registry.get(name)
-        n = len(np.asarray(trace.times))
+        n = len(jax.tree_util.tree_leaves(sf.frames)[0])  # stored frames (every ``trace.sensor_stride``-th instant)
         if sensor.display == "image":
-            frames = [encode.png_data_uri(sensor.image(sf.frame(k), sf.config)) for k in range(0, n, image_stride)]
-            panes.append({"name": name, "display": "image", "stride": image_stride, "frames": frames})
+            step, eff = _sensor_step(trace, image_stride)
+            frames = [encode.png_data_uri(sensor.image(sf.frame(k), sf.config)) for k in range(0, n, step)]
+            panes.append({"name": name, "display": "image", "stride": eff, "frames": frames})
         elif sensor.display == "pointcloud":
+            step, points_stride = _sensor_step(trace, points_stride)  # other sensors follow ``sensor_stride``
             rng = np.random.default_rng(seed)
             frames, reach = [], 1.0
-            for k in range(0, n, points_stride):
+            for k in range(0, n, step):
                 xyz, cls = sensor.points(sf.frame(k), sf.config)
                 xy = np.asarray(xyz, np.float64)[:, :2]
                 if len(xy):
@@ -180,6 +208,18 @@ def sensor_panes(trace, image_stride: int, points_stride: int, max_points: int, 
             panes.append({"name": name, "display": "pointcloud", "stride": points_stride,
                           "range": float(np.ceil(min(reach, 100.0))), "scale": encode.LIDAR_SCALE, "frames": frames})
     return panes
+
+
+def index_entry(ep: dict, key: str) -> dict:
+    """The index row of an episode record (what the page lists, filters and
+    sorts before any episode file is loaded): ``key`` (its file stem), id,
+    policy, status, ds, rc, behavior, split, map_id, n, reproduced, and
+    ``infractions``: {event type: count} of its stored events."""
+    counts: dict[str, int] = {}
+    for e in ep["events"]:
+        counts[str(e.get("type"))] = counts.get(str(e.get("type")), 0) + 1
+    keep = ("id", "policy", "status", "ds", "rc", "behavior", "split", "map_id", "n", "reproduced")
+    return {"key": key, **{k: ep[k] for k in keep}, "infractions": counts}
 
 
 def _stride(dt: float, period_s: float) -> int:
@@ -191,7 +231,7 @@ def episode_payload(trace, *, sensors: bool = True, bev_period_s: float = 0.2, l
     """One trace -> (episode record, its map id, the map record).
 
     Args:
-      trace: ``io.episodes.EpisodeTrace``.
+      trace: ``eval.traces.EpisodeTrace``.
       sensors: embed the BEV / LiDAR / other sensors' frames the trace carries.
       bev_period_s, lidar_period_s: keep one sensor frame per this many
         seconds (other sensors: image ones as the BEV, point clouds as the LiDAR).

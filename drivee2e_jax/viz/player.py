@@ -1,24 +1,38 @@
-"""The self-contained HTML episode player (host side).
+"""The HTML episode player (host side): an index page plus one small file per episode.
 
-``write_player(traces, out_path, title=...)`` turns episode traces
-(``drivee2e_jax.eval.traces.trace_episodes``) into ONE html file: the
-template ``player.html`` (vanilla JS + canvas, no network) with the episodes
-embedded as JSON in a ``<script type="application/json">`` tag. The embedded
-document is::
+``PlayerWriter(out_html)`` takes episode traces one at a time (``add``; a
+trace can be dropped as soon as it is added, so a run of any size streams
+through in bounded memory) and ``close()`` writes the page::
 
-    {"meta":     {"categories": [...], "signal_states": [...], "markings": [...],
-                  "hit_classes": [...]},          # enum names by value
-     "maps":     {map_id: {drivable, obstacles, crosswalks, lanes: [flat...],
-                           boundaries: [[marking, flat]], stop_lines: [[x0,y0,x1,y1]]}},
-     "episodes": [episode, ...]}                  # see viz/payload.py
+    player.html                     the player with the INDEX embedded (no episode data)
+    player_files/episodes/e00000.js one per episode:  drivee2e_data("episode", "e00000", {...});
+    player_files/maps/m0.js         one per map id:   drivee2e_data("map", "m0", {...});
 
-Maps are stored once per map id, however many episodes drive on them.
+The page loads an episode when it is opened by adding a ``<script src>`` for
+its file: browsers refuse ``fetch()`` of ``file://`` URLs, but load scripts
+from beside the page, so the folder works when the page is opened directly
+(no server). Each file calls the page's ``drivee2e_data(kind, key, record)``.
+``single_file=True`` embeds every episode and map in the page instead
+(``write_player``; fine for a few episodes).
+
+The page is the template ``player.html`` (vanilla JS + canvas, no network);
+its embedded document (the ``__DATA__`` placeholder)::
+
+    {"meta":      payload.enum_meta(),
+     "files":     "player_files/" (relative to the page) or null (single file),
+     "index":     [payload.index_entry(...)],      # every episode, in the order added
+     "map_files": {map_id: file key},
+     "episodes":  {key: episode record} and "maps": {key: map record}: single file only}
+
+Episode records: ``viz/payload.py``. Maps are stored once per map id,
+however many episodes drive on them.
 """
 
 from __future__ import annotations
 
 import html
 import json
+import shutil
 from collections.abc import Iterable
 from importlib import resources
 from pathlib import Path
@@ -27,6 +41,8 @@ from drivee2e_jax.files import atomic_write_text
 from drivee2e_jax.viz import payload
 
 TEMPLATE = "player.html"
+#: What the episode and map files call (defined by player.html).
+CALLBACK = "drivee2e_data"
 
 
 def load_template() -> str:
@@ -49,23 +65,86 @@ def render_player(document: dict, *, title: str) -> str:
     return head + embed_json(document) + tail
 
 
-def build_document(traces: Iterable, **payload_kw) -> dict:
-    """Episode traces -> the embedded document (meta, shared maps, episodes).
+def files_dir(out_html: str | Path) -> Path:
+    """The folder of per-episode files beside the page: ``<stem>_files``."""
+    out = Path(out_html)
+    return out.with_name(f"{out.stem}_files")
 
-    ``payload_kw`` go to ``payload.episode_payload`` (sensor subsampling)."""
 
-    maps: dict[str, dict] = {}
-    episodes = []
-    for tr in traces:
-        ep, map_id, map_doc = payload.episode_payload(tr, **payload_kw)
-        maps.setdefault(map_id, map_doc)
-        episodes.append(ep)
-    return {"meta": payload.enum_meta(), "maps": maps, "episodes": episodes}
+def data_script(kind: str, key: str, record: dict) -> str:
+    """The JavaScript of one episode / map file: a single ``drivee2e_data`` call."""
+    return f"{CALLBACK}({embed_json(kind)},{embed_json(key)},{embed_json(record)});\n"
+
+
+class PlayerWriter:
+    """Streams traces into the player (module docstring).
+
+    Args:
+      out_html: the page to write; per-episode files go to ``files_dir(out_html)``
+        (emptied of earlier episode / map files first).
+      title: the page title.   single_file: embed everything in the page.
+      payload_kw: ``payload.episode_payload`` options (sensors, periods, points).
+    """
+
+    def __init__(self, out_html: str | Path, *, title: str = "drivee2e episode player", single_file: bool = False,
+                 **payload_kw):
+        self.out = Path(out_html)
+        self.title = title
+        self.single = bool(single_file)
+        self.payload_kw = payload_kw
+        self.index: list[dict] = []
+        self.map_files: dict[str, str] = {}
+        self.inline: dict[str, dict] = {"episodes": {}, "maps": {}}
+        self.bytes_written = 0
+        self.dir = files_dir(self.out)
+        if not self.single:
+            for sub in ("episodes", "maps"):
+                shutil.rmtree(self.dir / sub, ignore_errors=True)
+                (self.dir / sub).mkdir(parents=True, exist_ok=True)
+
+    def add(self, trace) -> dict:
+        """Write one trace's episode file (and its map's, the first time);
+        returns its index row."""
+        ep, map_id, map_doc = payload.episode_payload(trace, **self.payload_kw)
+        key = f"e{len(self.index):05d}"
+        if map_id not in self.map_files:
+            self.map_files[map_id] = mkey = f"m{len(self.map_files)}"
+            self._put("map", mkey, map_doc)
+        self._put("episode", key, ep)
+        row = payload.index_entry(ep, key)
+        self.index.append(row)
+        return row
+
+    def _put(self, kind: str, key: str, record: dict) -> None:
+        if self.single:
+            self.inline["episodes" if kind == "episode" else "maps"][key] = record
+            return
+        text = data_script(kind, key, record)
+        path = self.dir / ("episodes" if kind == "episode" else "maps") / f"{key}.js"
+        path.write_text(text, encoding="utf-8")
+        self.bytes_written += len(text.encode("utf-8"))
+
+    def document(self) -> dict:
+        """The page's embedded document (module docstring)."""
+        doc = {"meta": payload.enum_meta(), "files": None if self.single else f"{self.dir.name}/",
+               "index": self.index, "map_files": self.map_files}
+        if self.single:
+            doc.update(self.inline)
+        return doc
+
+    def close(self) -> Path:
+        """Write the page (atomically); returns its path."""
+        page = render_player(self.document(), title=self.title)
+        atomic_write_text(self.out, page)
+        self.bytes_written += len(page.encode("utf-8"))
+        return self.out
 
 
 def write_player(traces: Iterable, out_path: str | Path, *, title: str = "drivee2e episode player",
-                 **payload_kw) -> Path:
-    """Write the player for ``traces`` to ``out_path`` atomically; returns the path."""
-    out = Path(out_path)
-    atomic_write_text(out, render_player(build_document(traces, **payload_kw), title=title))
-    return out
+                 single_file: bool = True, **payload_kw) -> Path:
+    """Write the player for ``traces`` (one file by default; ``single_file=False``:
+    the page plus its ``<stem>_files`` folder); returns the page's path."""
+    writer = PlayerWriter(out_path, title=title, single_file=single_file, **payload_kw)
+    for tr in traces:
+        writer.add(tr)
+    return writer.close()

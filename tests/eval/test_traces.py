@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from drivee2e_jax.eval import traces as episodes
 from drivee2e_jax.eval.bench import BenchConfig, run_bench
 
 REPO = Path(__file__).resolve().parents[2]
-TINY = REPO / "scenarios" / "examples" / "tiny"
+TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 #: One waypoint policy: the same bench as test_mcap_export (one compile, shared
 #: through the persistent cache), and its plan exercises the world-frame transform.
 POLICIES = ("constant_velocity",)
@@ -142,3 +143,89 @@ def test_rounding_keeps_finite_values_and_nulls_the_rest(values, nd):
             assert o == pytest.approx(v, abs=0.5 * 10.0 ** -nd + 1e-9 * abs(v))
         else:
             assert o is None
+
+
+def test_stream_renders_one_chunk_ahead_at_most(monkeypatch):
+    """The stream holds at most two chunks of frames (the one being handed
+    out and the next, rendering): a counting fake renderer over 7 episodes in
+    chunks of 2 (the simulation and trace assembly faked too)."""
+    log = []
+
+    class FakeRenderer:
+        bev_sim = None
+
+        def __init__(self, sim_out, suite, packed, sensor_cfg, chunk, stride, lidar_stride):
+            assert (chunk, stride, lidar_stride) == (2, 3, 5)
+
+        def start(self, part):
+            log.append(("start", tuple(part["rows"])))
+            return tuple(part["rows"])
+
+        def finish(self, part, started):
+            assert started == tuple(part["rows"])
+            log.append(("finish", started))
+            return [f"frames {r}" for r in started]
+
+    def fake_trace(run, packed, row, j, part, frames, stored, bev_cfg, sensor_cfg, stride, lidar_stride):
+        assert frames[j] == f"frames {row}"
+        log.append(("yield", row))
+        return SimpleNamespace(row=row, reproduced=True)
+
+    monkeypatch.setattr(episodes, "FrameRenderer", FakeRenderer)
+    monkeypatch.setattr(episodes, "_simulate", lambda *a: {"rows": 7})
+    monkeypatch.setattr(episodes, "_chunk", lambda sim_out, packed, rows, a, b: {"rows": rows[a:b]})
+    monkeypatch.setattr(episodes, "_episode_trace", fake_trace)
+    for name in ("_load_run_policy", "_run_settings", "stored_rows"):
+        monkeypatch.setattr(episodes, name, lambda *a: {})
+    packed = SimpleNamespace(meta=SimpleNamespace(scenario_id=[f"s{i}" for i in range(7)]))
+    stream = episodes._stream(None, None, packed, np.arange(7), None, 2, 3, 5)
+    assert log == [], "nothing runs before the first next()"
+    assert [t.row for t in stream] == list(range(7))
+    assert [e for e in log if e[0] == "yield"] == [("yield", r) for r in range(7)]
+    held, peak = set(), 0
+    for kind, what in log:
+        if kind == "start":
+            held.add(what)
+        elif kind == "yield" and what % 2 == 1 or kind == "yield" and what == 6:
+            held.discard(next(c for c in held if what in c))  # the chunk's last trace handed out
+        peak = max(peak, len(held))
+        if kind == "yield":
+            later = [c for c in held if min(c) > what]
+            assert len(later) <= 1, (what, held)  # never more than the next chunk rendered ahead
+    assert peak == 2
+
+
+def test_iter_traces_streams_the_same_traces(run_dir, traces):
+    """``iter_traces`` in chunks of one gives ``trace_episodes``' traces, and
+    simulates nothing before the first ``next()``."""
+    stream = episodes.iter_traces(run_dir, POLICY, sensors=(), chunk_size=1)
+    seen = list(stream)
+    assert [t.scenario_id for t in seen] == [t.scenario_id for t in traces[POLICY]]
+    for a, b in zip(seen, traces[POLICY]):
+        assert a.reproduced
+        np.testing.assert_array_equal(a.ego_xy, b.ego_xy)
+        np.testing.assert_array_equal(a.agents.xy, b.agents.xy)
+
+
+def test_strided_sensor_frames_are_the_full_frames_at_those_instants(run_dir):
+    """``sensor_stride`` / ``lidar_stride`` keep exactly the stride-1 frames of
+    instants 0, s, 2s, ... (the BEV bits and the LiDAR returns)."""
+    kw = dict(sensors=("bev", "lidar"), limit=1, chunk_size=2)
+    (full,) = episodes.iter_traces(run_dir, POLICY, **kw)
+    (part,) = episodes.iter_traces(run_dir, POLICY, sensor_stride=3, lidar_stride=4, **kw)
+    n = full.num_steps
+    assert (part.sensor_stride, part.lidar_stride) == (3, 4) and part.num_steps == n
+    assert isinstance(part.bev, episodes.PackedBev) and list(part.bev) == list(full.bev)
+    np.testing.assert_array_equal(part.bev.bits, full.bev.bits[::3])
+    assert part.bev.bits.shape[0] == -(-n // 3)
+    for c in full.bev:
+        np.testing.assert_array_equal(part.bev[c], full.bev[c][::3])
+    np.testing.assert_array_equal(part.lidar_points, full.lidar_points[::4])
+    np.testing.assert_array_equal(part.lidar_valid, full.lidar_valid[::4])
+    with pytest.raises(DriveE2EError, match="chunk_size, sensor_stride and lidar_stride must be >= 1"):
+        episodes.iter_traces(run_dir, POLICY, chunk_size=0)
+
+
+def test_run_policies_and_scenarios(run_dir):
+    assert episodes.run_policies(run_dir) == [POLICY]
+    assert episodes.run_scenarios(run_dir, POLICY) == ["s_straight", "s_left"]

@@ -148,8 +148,11 @@ def test_the_player_pictures_are_the_policys_observation(traced):
     channels = BevConfig().channel_names
     assert tuple(t.bev) == channels
     pane = payload.bev_payload(t, 1)
+    sheet = np.asarray(Image.open(io.BytesIO(base64.b64decode(pane["sheet"].split(",", 1)[1]))).convert("RGB"))
+    h = pane["h"]
+    assert pane["count"] == t.num_steps and sheet.shape[0] == h * t.num_steps
     for k in (0, t.num_steps // 2, t.num_steps - 1):
-        img = np.asarray(Image.open(io.BytesIO(base64.b64decode(pane["frames"][k].split(",", 1)[1]))).convert("RGB"))
+        img = sheet[k * h: (k + 1) * h]  # frame k of the sprite sheet
         want = encode.composite_bev(np.asarray(unpack_bits(seen[k, 1], len(channels))), channels)
         np.testing.assert_array_equal(img, want)
 
