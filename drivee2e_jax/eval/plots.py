@@ -6,8 +6,16 @@ same folder + ``os.replace``):
 * ``sr_by_behavior.png`` / ``ds_by_behavior.png``: grouped bars, one colour per
   policy, x = behaviour group (with its size); error bars = std over
   repetitions when there are several.
-* ``metric_distributions.png``: one box plot panel per column (DS, RC and a
-  few other numeric columns), one box per policy, pooled over repetitions.
+* ``infractions_per_km.png``: horizontal grouped bars, one row per infraction
+  or event type that occurred (for some policy), one bar per policy: events per km driven
+  (LB 2.0's rate, km = route length x RC); error bars = std over repetitions.
+  Left out when no policy has any event.
+* ``comfort.png``: one box plot panel per comfort column (physical jerk and
+  Bench2Drive smoothness), one box per policy, pooled over repetitions.
+  Left out when ``scenarios.csv`` has none of them.
+
+Only what depends on the policy is drawn; scenario properties (route length,
+speed limit) would look the same for every policy.
 
 Figures are made with matplotlib's object API (``Figure`` + the Agg canvas), never pyplot.
 """
@@ -27,12 +35,23 @@ from drivee2e_jax.files import atomic_write
 _COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
            "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
 _LABELS = {"driving_score": "Driving score DS", "route_completion": "Route completion RC %",
-           "success_rate": "Success rate SR %"}
+           "success_rate": "Success rate SR %", "jerk_lon_mean_mps3": "Jerk: mean |Δa|/Δt, m/s³",
+           "smoothness_pct": "B2D smoothness %\n(20-step chunks within bounds)"}
 
 
 def write_plots(folder: Path, policies: list[str], groups: list[str], sizes: list[int], sr: dict, ds: dict,
-                distributions: dict[str, dict[str, list[float]]], repetitions: int) -> dict[str, str]:
-    """Draw every figure into ``folder``; returns {name: path relative to the run folder}."""
+                infractions: dict[str, dict[str, tuple[float, float] | None]],
+                comfort: dict[str, dict[str, list[float]]], repetitions: int) -> dict[str, str]:
+    """Draw every figure into ``folder``; returns {name: path relative to the run folder}.
+
+    Args:
+      policies: names, in legend order.
+      groups, sizes: behaviour groups and their scenario counts.
+      sr, ds: {policy: [(mean, std) or None per group]}, % and DS points.
+      infractions: {event type: {policy: (mean, std) events per km, or None}}.
+      comfort: {column: {policy: per-episode values}}.
+      repetitions: how many repetitions the means are over (titles only).
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     reps = f"\n(mean ± std over {repetitions} repetitions)" if repetitions > 1 else ""
@@ -42,9 +61,43 @@ def write_plots(folder: Path, policies: list[str], groups: list[str], sizes: lis
             _save(grouped_bars(policies, groups, sizes, values, label, f"{label} by behaviour group{reps}"),
                   folder / f"{name}.png")
             out[name] = f"{folder.name}/{name}.png"
-    _save(distributions_grid(policies, distributions), folder / "metric_distributions.png")
-    out["metric_distributions"] = f"{folder.name}/metric_distributions.png"
+    occurred = {k: per for k, per in infractions.items() if any(v and v[0] > 0 for v in per.values())}
+    if occurred:
+        _save(infraction_bars(policies, occurred, f"Infractions and events per km driven{reps}\n"
+                                                  "(types without any event left out)"),
+              folder / "infractions_per_km.png")
+        out["infractions_per_km"] = f"{folder.name}/infractions_per_km.png"
+    if comfort:
+        _save(distributions_grid(policies, comfort, "Comfort per episode (box: quartiles, whiskers 1.5 IQR, ◇ mean)"),
+              folder / "comfort.png")
+        out["comfort"] = f"{folder.name}/comfort.png"
     return out
+
+
+def infraction_bars(policies, rates: dict[str, dict[str, tuple[float, float] | None]], title: str):
+    """Horizontal bars: a row per event type (``rates`` order, top down), a bar per policy.
+
+    ``rates[type][policy]`` is (mean, std) events per km, or None (no km driven: no bar)."""
+    kinds = list(rates)
+    fig = Figure(figsize=(8.5, 1.2 + 0.28 * len(kinds) * max(len(policies), 2)), layout="constrained")
+    ax = fig.add_subplot()
+    height = 0.8 / max(len(policies), 1)
+    for i, p in enumerate(policies):
+        ys = [len(kinds) - 1 - k + ((len(policies) - 1) / 2 - i) * height for k in range(len(kinds))]
+        vals = [rates[k].get(p) for k in kinds]
+        ms = [v[0] if v else math.nan for v in vals]
+        errs = [v[1] if v else 0.0 for v in vals]
+        bars = ax.barh(ys, ms, height * 0.92, color=_color(i), label=p,
+                       xerr=errs if any(errs) else None, capsize=2, error_kw={"elinewidth": 0.8})
+        ax.bar_label(bars, fmt="{:.2f}", fontsize=6.5, padding=1.5)
+    ax.set_yticks(range(len(kinds)), kinds[::-1], fontsize=8)
+    ax.set_xlabel("events per km driven")
+    ax.margins(x=0.15)
+    ax.set_title(title)
+    ax.grid(axis="x", alpha=0.3)
+    ax.set_axisbelow(True)
+    fig.legend(loc="outside right upper", frameon=False, title="policy")
+    return fig
 
 
 def grouped_bars(policies, groups, sizes, values: dict[str, list], ylabel: str, title: str):
@@ -72,7 +125,7 @@ def grouped_bars(policies, groups, sizes, values: dict[str, list], ylabel: str, 
     return fig
 
 
-def distributions_grid(policies, distributions: dict[str, dict[str, list[float]]]):
+def distributions_grid(policies, distributions: dict[str, dict[str, list[float]]], title: str):
     """One box-plot panel per column; a box per policy (white diamond = mean)."""
     cols = list(distributions)
     nrows = math.ceil(len(cols) / 4)
@@ -98,7 +151,7 @@ def distributions_grid(policies, distributions: dict[str, dict[str, list[float]]
         ax.set_visible(False)
     handles = [_patch(_color(i)) for i in range(len(policies))]
     fig.legend(handles, policies, loc="outside right upper", frameon=False, title="policy")
-    fig.suptitle("Per-scenario distributions per policy (box: quartiles, whiskers 1.5 IQR, ◇ mean)", fontsize=10)
+    fig.suptitle(title, fontsize=10)
     return fig
 
 

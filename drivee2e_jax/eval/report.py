@@ -3,12 +3,18 @@
 ``write_report(run_dir)`` reads ``summary.json`` and ``scenarios.csv`` of a
 results folder (see ``io.results``) and writes, each file atomically:
 
-* ``report.md``: run description; side-by-side policy comparison; SR and DS
-  per behaviour group (DriveE2E Table 5 order) with group sizes;
-  per-intersection and per-weather tables; infraction counts; mean ± std of
-  every other numeric per-scenario column; the unsuccessful scenarios of each
-  policy (worst first, capped); links to the plots.
-* ``plots/*.png`` (drawn by ``io.plots``).
+* ``report.md``: run description; side-by-side policy comparison (with 95 %
+  confidence intervals of SR and DS, jerk, Bench2Drive smoothness and
+  efficiency); SR and DS per behaviour group (DriveE2E Table 5 order) with
+  group sizes; per-intersection and per-weather tables; infraction counts;
+  mean ± std of every other numeric per-scenario column; the unsuccessful
+  scenarios of each policy (worst first, capped); links to the plots; a
+  legend of every code and column abbreviation used.
+* ``plots/*.png`` (drawn by ``eval.plots``): SR / DS per behaviour group,
+  infractions per km by type, comfort distributions.
+
+Groups of fewer than ``SMALL_GROUP`` scenarios are flagged ``†`` wherever
+their size is shown; their intervals are left out (``summary.CI_MIN_N``).
 
 Where the numbers come from:
 
@@ -23,7 +29,8 @@ Per-scenario columns of ``scenarios.csv`` are classified generically, so new
 columns need no code change: text columns and id-like ones (``*_id``,
 ``repetition``, ``seed``) are categorical and skipped; the event counts
 (``metrics.episode.COUNT_COLUMNS`` and ``EXTRA_COUNTS``) are totalled; every
-other numeric column gets a mean ± std row.
+other numeric column gets a mean ± std row, except ``CSV_ONLY`` ones (a
+second jerk definition: the report shows one jerk, defined in the legend).
 """
 
 from __future__ import annotations
@@ -34,8 +41,7 @@ import math
 from pathlib import Path
 
 from drivee2e_jax.eval import plots
-from drivee2e_jax.eval.results import BASE_COLUMNS
-from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, summarize
+from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, CI_MIN_N, CI_RESAMPLES, CI_SEED, summarize
 from drivee2e_jax.files import atomic_write_text
 from drivee2e_jax.metrics.episode import COUNT_COLUMNS
 
@@ -49,10 +55,20 @@ CATEGORICAL = frozenset({"policy", "scenario_id", "split", "intersection_id", "b
                          "time_of_day", "status", "id", "index", *REPETITION_KEYS})
 #: Shown in the comparison tables; left out of the generic column table.
 HEADLINE = frozenset({"route_completion", "infraction_score", "driving_score", "success"})
+#: Kept in ``scenarios.csv`` but left out of the report's tables: the Behavior
+#: Metrics eq. (2) "jerk" (mean signed speed change per step, m/s), so that the
+#: report shows one jerk, ``JERK_COLUMN``.
+CSV_ONLY = frozenset({"longitudinal_jerk_mps"})
+#: The one jerk of the report: physical longitudinal jerk, mean |Δa|/Δt, m/s³.
+JERK_COLUMN = "jerk_lon_mean_mps3"
+#: Comfort columns drawn in comfort.png, when present.
+COMFORT_COLUMNS = (JERK_COLUMN, "smoothness_pct")
+#: Event counts not drawn in infractions_per_km.png (not a driving infraction).
+NOT_PLOTTED = frozenset({"invalid_action"})
+#: Groups with fewer scenarios than this are flagged "†" (and get no interval).
+SMALL_GROUP = CI_MIN_N
 #: Unsuccessful scenarios listed per policy.
 MAX_FAILED = 20
-#: Extra numeric columns drawn next to DS and RC in metric_distributions.png.
-MAX_DIST_COLUMNS = 6
 
 
 class _Run:
@@ -87,10 +103,11 @@ def write_report(run_dir: Path) -> Path:
         _behaviour_section(run, images),
         _group_section(run, "by_intersection", "Per intersection"),
         _group_section(run, "by_weather", "Per weather"),
-        _counts_section(run),
+        _counts_section(run, images),
         _other_section(run, images),
         _failed_section(run),
         _notes_section(run),
+        _legend_section(run),
     ]
     path = run_dir / "report.md"
     atomic_write_text(path, "\n\n".join(s.strip("\n") for s in sections if s) + "\n")
@@ -122,7 +139,8 @@ def classify_columns(columns: list[str], rows: list[dict]) -> tuple[list[str], l
         vals = [r[c] for r in rows]
         if c in HEADLINE or not vals or not all(isinstance(v, float) for v in vals):
             continue
-        (counts if c in COUNT_COLUMNS or c in EXTRA_COUNTS else others).append(c)
+        if c not in CSV_ONLY:
+            (counts if c in COUNT_COLUMNS or c in EXTRA_COUNTS else others).append(c)
     return counts, others
 
 
@@ -144,16 +162,18 @@ def _plot_data(run: _Run) -> dict:
     groups = _behaviour_groups(run)
     by = {m: {p: [_stats([s["by_behavior"].get(g, {}).get(m) for s in run.summaries[p]]) for g in groups]
               for p in run.policies} for m in ("success_rate", "driving_score")}
-    varying = [c for c in sorted(run.others, key=lambda c: c in BASE_COLUMNS) if _varies(run, c)]
-    cols = ["driving_score", "route_completion"] + varying[:MAX_DIST_COLUMNS]
-    dists = {c: {p: [r[c] for r in run.rows_of(p) if not math.isnan(r[c])] for p in run.policies} for c in cols}
+    comfort = {c: {p: _finite(run.rows_of(p), c) for p in run.policies} for c in COMFORT_COLUMNS if c in run.others}
+    kinds = [c for c in run.counts if c not in NOT_PLOTTED]
+    rates = {c: {p: _stats(_per_rep(run, p, lambda rs, c=c: per_km(rs, c))) for p in run.policies} for c in kinds}
     return {"policies": run.policies, "groups": groups, "sizes": [_group_size(run, "by_behavior", g) for g in groups],
-            "sr": by["success_rate"], "ds": by["driving_score"], "distributions": dists, "repetitions": len(run.reps)}
+            "sr": by["success_rate"], "ds": by["driving_score"], "infractions": rates, "comfort": comfort,
+            "repetitions": len(run.reps)}
 
 
-def _varies(run: _Run, col: str) -> bool:
-    """Whether ``col`` takes more than one value within some policy (else a box plot says nothing)."""
-    return any(len({r[col] for r in run.rows_of(p) if not math.isnan(r[col])}) > 1 for p in run.policies)
+def per_km(rows: list[dict], col: str) -> float:
+    """Events of ``col`` per km driven over ``rows`` (LB 2.0: km = Σ length · RC / 100, floored at 1 m)."""
+    km = sum(r["route_length_m"] * r["route_completion"] / 100.0 for r in rows) / 1000.0
+    return sum(r[col] for r in rows if not math.isnan(r[col])) / max(km, 0.001)
 
 
 # --------------------------------------------------------------------------- sections
@@ -179,13 +199,16 @@ def _run_section(run: _Run) -> str:
         lines.append(f"* One repetition (`{run.rep_key}` = {run.reps[0] if run.reps else '?'})")
     if len(set(n_rows.values())) > 1:
         lines.append("* Rows per policy differ: " + ", ".join(f"`{p}` {n}" for p, n in n_rows.items()))
+    lines.append("* Codes, statuses and column abbreviations: see [Legend](#legend) at the end")
     return "\n".join(lines)
 
 
-_OVERALL = (  # (label, key in summary["overall"], decimals)
+_OVERALL = (  # (label, key in summary["overall"], decimals); a key ending in _ci95 is an interval
     ("Scenarios", "num_scenarios", 0),
     ("Success rate SR %", "success_rate", 1),
+    ("SR 95 % CI", "success_rate_ci95", 1),
     ("Driving score DS", "driving_score", 2),
+    ("DS 95 % CI", "driving_score_ci95", 2),
     ("DS std over scenarios", "driving_score_std", 2),
     ("Route completion RC %", "route_completion", 2),
     ("Infraction score IS", "infraction_score", 3),
@@ -194,12 +217,15 @@ _OVERALL = (  # (label, key in summary["overall"], decimals)
     ("Red lights / km", "red_light_per_km", 3),
     ("Off-lane %", "outside_route_lanes_pct", 2),
     ("Invalid-action steps", "invalid_action_steps", 0),
+    ("Jerk m/s³", JERK_COLUMN, 2),
+    ("B2D smoothness %", "smoothness_pct", 1),
+    ("B2D efficiency %", "efficiency_pct", 1),
 )
 
 
 def _comparison_section(run: _Run) -> str:
-    rows = [[label] + [_fmt([s["overall"].get(key) for s in run.summaries[p]], d) for p in run.policies]
-            for label, key, d in _OVERALL]
+    rows = [[label] + [_cell_of(run, [s["overall"] for s in run.summaries[p]], key, d) for p in run.policies]
+            for label, key, d in _OVERALL if not (run.multi and key.endswith("_ci95"))]
     statuses = sorted({k for p in run.policies for s in run.summaries[p] for k in s["overall"].get("statuses", {})},
                       key=lambda k: (_status_rank(k), k))
     rows += [[f"status: {k}"] + [_fmt([s["overall"].get("statuses", {}).get(k, 0) for s in run.summaries[p]], 0)
@@ -211,17 +237,17 @@ def _behaviour_section(run: _Run, images: dict[str, str]) -> str:
     groups = _behaviour_groups(run)
     if not groups:
         return ""
-    head = ["policy"] + [f"{g} (n={_group_size(run, 'by_behavior', g)})" for g in groups] + ["mean of groups"]
+    head = ["policy"] + [f"{g} (n={_n(_group_size(run, 'by_behavior', g))})" for g in groups] + ["mean of groups"]
     out = ["## Per behaviour group (DriveE2E Table 5 order)"]
     for key, title, d, img in (("success_rate", "Success rate SR %", 1, "sr_by_behavior"),
                                ("driving_score", "Driving score DS", 2, "ds_by_behavior")):
         rows = []
         for p in run.policies:
-            per_group = [[s["by_behavior"].get(g, {}).get(key) for s in run.summaries[p]] for g in groups]
-            macro = [_mean([v for v in rep if v is not None]) for rep in zip(*per_group)]
-            rows.append([f"`{p}`"] + [_fmt(v, d) for v in per_group] + [_fmt(macro, d)])
+            per_group = [[s["by_behavior"].get(g, {}) for s in run.summaries[p]] for g in groups]
+            macro = [_mean([e[key] for e in rep if key in e]) for rep in zip(*per_group)]
+            rows.append([f"`{p}`"] + [_cell_of(run, v, key, d, ci=True) for v in per_group] + [_fmt(macro, d)])
         out += [f"### {title}", _table(head, rows, ("l",) + ("r",) * (len(head) - 1)), _image(images, img, title)]
-    return "\n\n".join(out)
+    return "\n\n".join(out + _small_note(run, [_group_size(run, "by_behavior", g) for g in groups]))
 
 
 def _group_section(run: _Run, key: str, title: str) -> str:
@@ -229,13 +255,14 @@ def _group_section(run: _Run, key: str, title: str) -> str:
     if not groups:
         return ""
     head = ["group", "n"] + [f"{p} {m}" for p in run.policies for m in ("SR %", "DS")]
-    rows = [[g, str(_group_size(run, key, g))]
-            + [_fmt([s[key].get(g, {}).get(m) for s in run.summaries[p]], d)
+    rows = [[g, _n(_group_size(run, key, g))]
+            + [_cell_of(run, [s[key].get(g, {}) for s in run.summaries[p]], m, d, ci=True)
                for p in run.policies for m, d in (("success_rate", 1), ("driving_score", 2))] for g in groups]
-    return f"## {title}\n\n" + _table(head, rows, ("l",) + ("r",) * (len(head) - 1))
+    note = _small_note(run, [_group_size(run, key, g) for g in groups])
+    return "\n\n".join([f"## {title}", _table(head, rows, ("l",) + ("r",) * (len(head) - 1)), *note])
 
 
-def _counts_section(run: _Run) -> str:
+def _counts_section(run: _Run, images: dict[str, str]) -> str:
     if not run.counts:
         return ""
     totals = {c: {p: _per_rep(run, p, lambda rs, c=c: sum(r[c] for r in rs if not math.isnan(r[c])))
@@ -249,6 +276,7 @@ def _counts_section(run: _Run) -> str:
         out.append(_table(["column", *run.policies], rows, ("l",) + ("r",) * len(run.policies)))
     if zero:
         out.append("Zero for every policy: " + ", ".join(f"`{c}`" for c in zero) + ".")
+    out.append(_image(images, "infractions_per_km", "Infractions and events per km driven"))
     return "\n\n".join(out)
 
 
@@ -263,7 +291,7 @@ def _other_section(run: _Run, images: dict[str, str]) -> str:
     if run.others:
         rows = [[f"`{c}`"] + [cell(p, c, _decimals(run, c)) for p in run.policies] for c in run.others]
         out.append(_table(["column", *run.policies], rows, ("l",) + ("r",) * len(run.policies)))
-    out.append(_image(images, "metric_distributions", "Per-policy distributions"))
+    out.append(_image(images, "comfort", "Comfort per episode: jerk and Bench2Drive smoothness"))
     return "\n\n".join(out)
 
 
@@ -293,16 +321,166 @@ def _notes_section(run: _Run) -> str:
         "## How to read this",
         "",
         f"* Aggregates are {source}.",
-        "* SR: % of scenarios finished (Perfect or Completed) with no infraction except min-speed; "
-        "DS: mean over scenarios of RC × IS (DriveE2E merge); 'DS std over scenarios' is LB 2.0's scores_std_dev.",
-        "* Per-km rates follow CARLA Leaderboard 2.0 global statistics (entries / km driven, km = length × RC).",
-        "* 'mean of groups' is the unweighted mean over the behaviour groups present (cf. DriveE2E's ability mean).",
+        "* Per-km rates follow CARLA Leaderboard 2.0 global statistics (entries / km driven, km = length × RC); "
+        "the infraction plot uses the same rule for every event column.",
         "* Event counts: non-negative integer columns of `scenarios.csv`; 'other columns': every remaining "
-        "numeric one (id-like and text columns are skipped).",
+        "numeric one (id-like and text columns are skipped, and `longitudinal_jerk_mps`: one jerk is shown).",
+        "* Plots show only what depends on the policy: SR / DS per behaviour group, infractions per km by type, "
+        "comfort (jerk, Bench2Drive smoothness) per episode.",
     ])
 
 
 # --------------------------------------------------------------------------- helpers
+
+
+#: DriveE2E's behaviour groups (paper, Table 5) and how a scenario gets its
+#: label (twin15: verified from the logged ego, docs/twin15.md; imported
+#: suites: inferred from the log with the same thresholds, scenario/labels.py).
+BEHAVIOR_HELP = {
+    "COV": "Competing with Other Vehicles: a vehicle on a conflicting path from another approach is in the "
+           "junction while the ego waits at its stop line or crosses",
+    "IPC": "Interaction with Pedestrians and Cyclists: a pedestrian or cyclist is on a crosswalk the ego's path "
+           "crosses while the ego is within ~25 m before it",
+    "UT": "Making a U-turn: heading change through the junction > 150°",
+    "YLW": "Passing through during Yellow Lights: the ego crosses its stop line on yellow",
+    "STR": "Going Straight through the intersection: heading change < 40°, on green",
+    "LFT": "Making a Left Turn: heading change > 40° to the left",
+    "RT": "Making a Right Turn: heading change > 40° to the right",
+    "STP": "Stopping at Red Lights: the ego stops (< 0.1 m/s) at its stop line on red, then goes on green",
+}
+#: The leaderboard statuses (``metrics.driving_score.STATUS_NAMES``).
+STATUS_HELP = {
+    "Perfect": "route completed, no infraction entry at all",
+    "Completed": "route completed with at least one infraction entry (still a success if all are min-speed ones)",
+    "Failed": "not completed, no other reason recorded",
+    "Failed - Agent timed out": "the route timeout ran out (300 s + route length / 1.39 m/s)",
+    "Failed - Agent deviated from the route": ">= 30 m from the route, or > 30 % of it driven 15-30 m off",
+    "Failed - Agent got blocked": "speed < 0.1 m/s for longer than 60 s (180 s in lb20)",
+    "Failed - TickRuntime": "cut by the time cap or the end of the replay log before the route was completed",
+}
+#: Per-scenario columns of ``scenarios.csv`` (docs/metrics.md); listed in the legend when the report shows them.
+COLUMN_HELP = {
+    "collisions_pedestrian": "collisions with pedestrians (IS × 0.50 each)",
+    "collisions_vehicle": "collisions with vehicles, bicycles and motorcycles included (IS × 0.60 each)",
+    "collisions_layout": "collisions with static obstacles (IS × 0.65 each)",
+    "red_light": "red lights run (IS × 0.70 each)",
+    "outside_route_lanes": "entries driving outside the route lanes (IS × (1 − off-lane %/100))",
+    "min_speed_infractions": "min-speed checkpoints below the surrounding traffic's speed (penalised only in "
+                             "presets with min speed on)",
+    "route_dev": "route deviations (ends the episode)",
+    "vehicle_blocked": "blocked events (ends the episode)",
+    "route_timeout": "route timeouts",
+    "invalid_action": "steps with a NaN/inf or out-of-range action (repaired: NaN → full brake, others clipped)",
+    "collisions_cyclist_motorcycle": "the vehicle collisions whose other party is a cyclist or motorcyclist",
+    "lane_invasions": "crossings of a painted lane marking (the corners of one lane change count once)",
+    "route_length_m": "route length, m",
+    "episode_s": "simulated episode length, s",
+    "eval_time_s": "wall-clock evaluation time per scenario, s",
+    "route_speed_limit_kmh": "mean speed limit along the route, km/h",
+    "outside_route_lanes_pct": "% of the route distance driven outside the route lanes",
+    "outside_route_lanes_m": "route distance driven outside the route lanes, m",
+    "position_deviation_mean_m": "mean distance to the centre of the lane being driven, m",
+    "effective_completed_distance_m": "RC × route length, m",
+    "completed_distance_m": "length of the path driven, m",
+    "average_speed_kmh": "mean speed, km/h",
+    "collisions_per_km": "collisions per effective km (Behavior Metrics)",
+    "lane_invasions_per_km": "lane invasions per effective km",
+    "front_time_pct_great": "% of time with the nearest agent ahead in the ego's corridor at 20-50 m",
+    "front_time_pct_medium": "% of time with it at 15-20 m",
+    "front_time_pct_short": "% of time with it at 6-15 m",
+    "front_time_pct_dangerous": "% of time with it at 0-6 m",
+    JERK_COLUMN: "**the** jerk of this report: mean over the steps driven of |Δa|/Δt of the ego's longitudinal "
+                 "acceleration, m/s³ (Behavior Metrics' eq. (2) 'jerk', `longitudinal_jerk_mps`, a mean signed "
+                 "speed change per step, stays in `scenarios.csv` only)",
+    "smoothness_pct": "Bench2Drive smoothness: % of 20-step chunks whose Savitzky-Golay smoothed lon/lat "
+                      "acceleration, jerks and yaw rate stay within B2D's bounds",
+    "efficiency_pct": "Bench2Drive efficiency: mean over the route's min-speed checkpoints of ego speed / speed of "
+                      "the surrounding vehicles, % (values > 1000 % ignored; > 100 % = faster than the traffic "
+                      "around, normal at signals where queued vehicles count; – = no checkpoint reached)",
+    "task_success": "1 if the driving task's success rule holds (`--task`)",
+    "l2_1s_stp3": "open-loop L2 at 1 s, m (ST-P3: mean over the steps up to 1 s)",
+    "l2_2s_stp3": "open-loop L2 at 2 s, m (ST-P3)",
+    "l2_3s_stp3": "open-loop L2 at 3 s, m (ST-P3)",
+    "l2_1s_uniad": "open-loop L2 at 1 s, m (UniAD: the value at 1 s)",
+    "l2_2s_uniad": "open-loop L2 at 2 s, m (UniAD)",
+    "l2_3s_uniad": "open-loop L2 at 3 s, m (UniAD)",
+    "openloop_collision_rate": "open-loop collision rate of the predicted waypoints",
+    "openloop_samples": "open-loop queries scored",
+}
+#: The report's own abbreviations (comparison table, group tables).
+ABBREVIATIONS = (
+    ("n", "scenarios in the group (per repetition)"),
+    ("SR %", "success rate: % of scenarios Perfect or Completed with no infraction entry except min-speed"),
+    ("DS", "driving score: mean over scenarios of RC × IS, 0-100 (DriveE2E merge)"),
+    ("RC %", "route completion: % of the route driven"),
+    ("IS", "infraction score: product of the per-infraction factors, 1 = none"),
+    ("95 % CI", f"95 % confidence interval: SR by the Wilson score interval; DS by a percentile bootstrap of the "
+                f"mean over scenarios ({CI_RESAMPLES} resamples, seed {CI_SEED}); shown for groups of at least "
+                f"{CI_MIN_N} scenarios and one repetition, as [low, high]"),
+    ("DS std over scenarios", "sample std of the per-scenario DS (LB 2.0's scores_std_dev)"),
+    ("km driven", "Σ route length × RC, km"),
+    ("Collisions / km, Red lights / km", "LB 2.0 rates: events / km driven"),
+    ("Off-lane %", "mean % of the route driven outside the route lanes"),
+    ("Invalid-action steps", "steps whose action was NaN/inf or out of range (repaired)"),
+    ("Jerk m/s³", f"mean over scenarios of `{JERK_COLUMN}` (below)"),
+    ("B2D smoothness %, B2D efficiency %", "Bench2Drive smoothness and efficiency (below; efficiency: B2D's "
+                                           "mean over routes)"),
+    ("mean of groups", "unweighted mean over the behaviour groups present (cf. DriveE2E's ability mean)"),
+    ("†", f"fewer than {SMALL_GROUP} episodes in the group: a noisy estimate, no confidence interval"),
+    ("–", "no value (nothing to average, or not in this run's data)"),
+)
+
+
+def _legend_section(run: _Run) -> str:
+    """Behaviour codes, statuses and every column or abbreviation the tables above use."""
+    groups = _behaviour_groups(run)
+    statuses = sorted({r["status"] for r in run.rows}, key=lambda k: (_status_rank(k), k))
+    shown = [c for c in (*run.counts, *run.others, "efficiency_pct") if c in COLUMN_HELP and c in run.columns]
+    out = ["## Legend"]
+    if groups:
+        out += ["**Behaviour groups** (DriveE2E's eight; docs/twin15.md)",
+                _table(["code", "meaning"], [[g, BEHAVIOR_HELP.get(g, "(not a DriveE2E group)")] for g in groups],
+                       ("l", "l"))]
+    out += ["**Statuses** (CARLA leaderboard; success = Perfect or Completed with no infraction entry except "
+            "min-speed)",
+            _table(["status", "meaning"], [[k, STATUS_HELP.get(k, "")] for k in statuses], ("l", "l")),
+            "**Abbreviations**",
+            _table(["abbreviation", "meaning"], [list(a) for a in ABBREVIATIONS], ("l", "l"))]
+    if run.multi:
+        out.append("With repetitions, `a ± b` is the mean ± sample std over repetitions.")
+    if shown:
+        out += ["**Columns** (of `scenarios.csv`; docs/metrics.md)",
+                _table(["column", "meaning"], [[f"`{c}`", COLUMN_HELP[c]] for c in dict.fromkeys(shown)],
+                       ("l", "l"))]
+    return "\n\n".join(out)
+
+
+def _cell_of(run: _Run, entries: list[dict], key: str, decimals: int, ci: bool = False) -> str:
+    """``key`` of one summary entry per repetition: a value, ``mean ± std`` or, for a ``*_ci95`` key, ``[lo, hi]``.
+
+    ``ci``: append the entry's ``<key>_ci95`` interval where it has one (one repetition only)."""
+    if key.endswith("_ci95"):
+        lo_hi = entries[0].get(key) if len(entries) == 1 else None
+        return f"[{lo_hi[0]:.{decimals}f}, {lo_hi[1]:.{decimals}f}]" if lo_hi else "–"
+    cell = _fmt([e.get(key) for e in entries], decimals)
+    if ci and not run.multi and entries and f"{key}_ci95" in entries[0]:
+        cell += " " + _cell_of(run, entries, f"{key}_ci95", decimals)
+    return cell
+
+
+def _n(size: int) -> str:
+    """A group size, flagged ``†`` below ``SMALL_GROUP``."""
+    return f"{size} †" if size < SMALL_GROUP else str(size)
+
+
+def _small_note(run: _Run, sizes: list[int]) -> list[str]:
+    """The ``†`` footnote, when a size is flagged; a note on the intervals shown."""
+    out = []
+    if any(n >= SMALL_GROUP for n in sizes) and not run.multi:
+        out.append(f"[low, high]: 95 % confidence interval (groups of {SMALL_GROUP} or more scenarios).")
+    if any(n < SMALL_GROUP for n in sizes):
+        out.append(f"† fewer than {SMALL_GROUP} episodes: a noisy estimate, no confidence interval.")
+    return out
 
 
 def _behaviour_groups(run: _Run) -> list[str]:

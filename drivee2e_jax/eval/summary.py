@@ -3,8 +3,15 @@
 ``summarize`` turns the rows of every policy into ``summary.json``'s content
 (overall, per behaviour group, intersection and weather); ``summary_of`` is the
 aggregate of one set of rows (SR, DS, RC, IS, LB 2.0 per-km rates, Bench2Drive
-efficiency and multi-ability, fine-grained means, open-loop means);
-``format_tables`` prints them. Host side, plain Python + numpy.
+efficiency and multi-ability, fine-grained means, open-loop means, 95 %
+confidence intervals of SR and DS); ``format_tables`` prints them. Host side,
+plain Python + numpy.
+
+Confidence intervals (docs/metrics.md, "Confidence intervals"): SR by the
+Wilson score interval (``wilson_ci``), DS by a percentile bootstrap of the
+mean over scenarios (``bootstrap_mean_ci``, ``CI_RESAMPLES`` resamples, seed
+``CI_SEED``: the same rows always give the same interval). Overall always;
+per group only for groups of at least ``CI_MIN_N`` scenarios.
 """
 
 from __future__ import annotations
@@ -13,6 +20,13 @@ import math
 
 import numpy as np
 
+from drivee2e_jax.metrics.abilities import (
+    ABILITY_NAMES,
+    B2D_ABILITIES,
+    BEHAVIOR_SCENARIO_TYPES,
+    b2d_abilities,
+    routes_from_rows,
+)
 from drivee2e_jax.metrics.aggregate import RouteResult, b2d_efficiency, drivee2e_merge, lb_global
 from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS
 from drivee2e_jax.metrics.finegrained import SUMMARY_COLUMNS
@@ -22,6 +36,76 @@ OPEN_LOOP_COLUMNS = (
     "l2_1s_stp3", "l2_2s_stp3", "l2_3s_stp3", "l2_1s_uniad", "l2_2s_uniad", "l2_3s_uniad",
     "openloop_collision_rate", "openloop_samples",
 )
+
+
+#: Two-sided 95 % normal quantile, Phi^-1(0.975).
+Z95 = 1.959963984540054
+#: Bootstrap resamples of the DS interval and the seed of their generator.
+CI_RESAMPLES = 10_000
+CI_SEED = 0
+#: Groups smaller than this get no interval (and are flagged in the report).
+CI_MIN_N = 10
+
+
+def wilson_ci(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion, in % (no continuity correction).
+
+    Args:
+      successes: k, 0 <= k <= n.
+      n: trials (scenarios), >= 1.
+      z: normal quantile (default two-sided 95 %).
+
+    Returns:
+      (low, high) in %, within [0, 100]; contains 100 k / n.
+    """
+    if not (n >= 1 and 0 <= successes <= n):
+        raise ValueError(f"wilson_ci: need 0 <= successes <= n and n >= 1, got {successes} of {n}")
+    p = successes / n
+    z2 = z * z
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = z / (1 + z2 / n) * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n))
+    lo = 0.0 if successes == 0 else max(centre - half, 0.0)  # exact ends: no 1e-15 residue at k = 0 or n
+    hi = 1.0 if successes == n else min(centre + half, 1.0)
+    return 100.0 * lo, 100.0 * hi
+
+
+def bootstrap_mean_ci(values, resamples: int = CI_RESAMPLES, seed: int = CI_SEED,
+                      level: float = 0.95) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of ``values``.
+
+    ``resamples`` means of ``len(values)`` draws with replacement (numpy
+    ``default_rng(seed)``, drawn in blocks so memory stays ~8 MB whatever
+    the size); the interval is their ``(1 - level) / 2`` and ``(1 + level) / 2``
+    quantiles (linear interpolation). Deterministic for a given seed; stays
+    inside [min, max] of ``values`` (DS: inside [0, 100]).
+
+    Args:
+      values: (n,) per-scenario values (e.g. DS), finite, n >= 1.
+      resamples: B >= 1.
+      seed: generator seed.
+      level: confidence level in (0, 1).
+
+    Returns:
+      (low, high) in the unit of ``values``.
+    """
+    x = np.asarray(values, dtype=np.float64).reshape(-1)
+    if x.size == 0 or not np.all(np.isfinite(x)):
+        raise ValueError(f"bootstrap_mean_ci: need >= 1 finite value, got {x.size} values")
+    if not (resamples >= 1 and 0 < level < 1):
+        raise ValueError(f"bootstrap_mean_ci: need resamples >= 1 and 0 < level < 1, got {resamples}, {level}")
+    rng = np.random.default_rng(seed)
+    block = max(1, 1_000_000 // x.size)
+    means = np.concatenate([x[rng.integers(0, x.size, (min(block, resamples - i), x.size))].mean(axis=1)
+                            for i in range(0, resamples, block)])
+    lo, hi = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi)
+
+
+def ci95(rows: list[dict], successes: int) -> dict:
+    """``success_rate_ci95`` (Wilson) and ``driving_score_ci95`` (bootstrap) of ``rows``, rounded, as [lo, hi]."""
+    sr = wilson_ci(successes, len(rows))
+    ds = bootstrap_mean_ci([float(r["driving_score"]) for r in rows])
+    return {"success_rate_ci95": [round(v, 4) for v in sr], "driving_score_ci95": [round(v, 4) for v in ds]}
 
 
 def _open_loop_means(rows: list[dict]) -> dict:
@@ -52,11 +136,13 @@ def summarize(rows_by_policy: dict[str, list[dict]], run_info: dict) -> dict:
     return out
 
 
-def summary_of(rows: list[dict], brief: bool = False) -> dict:
+def summary_of(rows: list[dict], brief: bool = False, ci: bool = True) -> dict:
     """SR / DS / RC / IS over ``rows`` plus LB 2.0 per-km infraction rates.
 
     SR and DS follow DriveE2E's merge (sum over the scenarios run / their
     number; SR in %); per-km rates follow LB 2.0's global statistics.
+    ``ci``: add ``success_rate_ci95`` / ``driving_score_ci95`` ([lo, hi], %
+    and DS points, see ``ci95``).
     """
 
     if not rows:
@@ -84,11 +170,14 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
         "driving_score": round(merged["driving score"], 4),
         "route_completion": round(float(np.mean([r["route_completion"] for r in rows])), 4),
     }
+    if ci:
+        out.update(ci95(rows, merged["success num"]))
     if "task_success" in rows[0]:
         out["task_success_rate"] = round(100.0 * float(np.mean([bool(r["task_success"]) for r in rows])), 4)
     if brief:
         return out
     out["abilities"] = ability_scores(rows)
+    out["abilities_junction_credit"] = has_junction_data(rows)
     g = lb_global(recs, planned_routes=len(recs))
     per_km = g["infractions"]
     collisions = sum(per_km[k] for k in ("collisions_pedestrian", "collisions_vehicle", "collisions_layout"))
@@ -114,39 +203,39 @@ def summary_of(rows: list[dict], brief: bool = False) -> dict:
     return out
 
 
-#: Bench2Drive's five abilities mapped onto the source's behaviour groups
-#: (B2D maps its own scenario types; ours is a judgement from the labels'
-#: meaning, docs/metrics.md): Merging = entering or crossing a conflicting
-#: stream (competing vehicles, left and right turns); Emergency_Brake =
-#: something may appear in the path (pedestrians / cyclists, competing
-#: vehicles); Give_Way = yielding (pedestrians / cyclists, unprotected left
-#: turns, U-turns); Traffic_Signs = obeying signals (red-light stops, yellow
-#: passes, straight through on the signal); Overtaking has no group here.
+#: Bench2Drive's five abilities as behaviour groups: the groups whose B2D
+#: scenario type (``abilities.BEHAVIOR_SCENARIO_TYPES``, docs/metrics.md) is in
+#: the ability's list. Merging = COV, Emergency_Brake = IPC, Traffic_Signs =
+#: every group (all cross a signalised junction); Overtaking and Give_Way have
+#: no group.
 ABILITIES = {
-    "Merging": ("COV", "LFT", "RT"),
-    "Overtaking": (),
-    "Emergency_Brake": ("IPC", "COV"),
-    "Give_Way": ("IPC", "LFT", "UT"),
-    "Traffic_Signs": ("STP", "YLW", "STR"),
+    a: tuple(g for g, t in BEHAVIOR_SCENARIO_TYPES.items() if t in B2D_ABILITIES[a]) for a in ABILITY_NAMES
 }
+#: Bench2Drive ``ability_benchmark.py`` version whose junction rule the summary applies.
+ABILITY_VERSION = "0.0.4"
 
 
-def ability_scores(rows: list[dict]) -> dict:
-    """Bench2Drive multi-ability success rates (%), by ``ABILITIES``.
+def has_junction_data(rows: list[dict]) -> bool:
+    """Whether every row carries the junction-credit inputs (``route_junction_index``,
+    ``route_waypoints``: the route's first junction waypoint at 1 m and its waypoint count)."""
+    return bool(rows) and all(r.get("route_waypoints") not in (None, "") and "route_junction_index" in r
+                              for r in rows)
 
-    Per ability: successes / scenarios of its behaviour groups (B2D's
-    ``ability_benchmark``, same success test as SR); abilities without a
-    scenario are left out; ``mean`` averages the abilities present (B2D
-    averages its five). Returns {} when no row has a mapped group.
+
+def ability_scores(rows: list[dict], version: str = ABILITY_VERSION) -> dict:
+    """Bench2Drive multi-ability success fractions (``abilities.b2d_abilities``).
+
+    Each row stands for the B2D scenario type of its behaviour group
+    (``BEHAVIOR_SCENARIO_TYPES``); per ability: successes / routes of its types
+    (B2D's ``ability_benchmark``, same success test as SR), plus Traffic_Signs'
+    junction credit when the rows carry the junction inputs
+    (``has_junction_data``; a route without a junction then earns none). Unlike
+    B2D (which divides by zero), abilities without a route are left out and
+    ``mean`` averages those present. Values are fractions in [0, 1], unrounded
+    as B2D writes them; {} when no row has a mapped group.
     """
-    out = {}
-    for ability, groups in ABILITIES.items():
-        sel = [r for r in rows if r["behavior"] in groups]
-        if sel:
-            out[ability] = round(100.0 * float(np.mean([bool(r["success"]) for r in sel])), 4)
-    if out:
-        out["mean"] = round(float(np.mean(list(out.values()))), 4)
-    return out
+    routes = routes_from_rows(rows)
+    return b2d_abilities(routes, version, junction_credit=has_junction_data(rows), strict=False, skip_empty=True)
 
 
 def finite(v) -> bool:
@@ -176,10 +265,26 @@ def _group(rows, key):
     groups: dict = {}
     for r in rows:
         groups.setdefault(r[key], []).append(r)
-    return {g: summary_of(rs, brief=True) for g, rs in sorted(groups.items())}
+    return {g: summary_of(rs, brief=True, ci=len(rs) >= CI_MIN_N) for g, rs in sorted(groups.items())}
 
 
 BEHAVIOR_ORDER = ("COV", "IPC", "UT", "YLW", "STR", "LFT", "RT", "STP")
+
+
+def _ci_table(pols: dict, nw: int) -> list[str]:
+    """Console lines: SR and DS with their 95 % intervals per policy (none when no policy has them)."""
+    if not any("success_rate_ci95" in s["overall"] for s in pols.values()):
+        return []
+    head = f"{'95% CI':<{nw}}{'SR %':>7}{'SR 95% CI':>16}{'DS':>8}{'DS 95% CI':>16}"
+    lines = ["", head, "-" * len(head)]
+    for name, s in pols.items():
+        o = s["overall"]
+        cells = [f"[{o[k][0]:.1f}, {o[k][1]:.1f}]" if k in o else "-"
+                 for k in ("success_rate_ci95", "driving_score_ci95")]
+        lines.append(f"{name:<{nw}}{o['success_rate']:>7.1f}{cells[0]:>16}{o['driving_score']:>8.2f}{cells[1]:>16}")
+    lines.append(f"(SR: Wilson score interval; DS: percentile bootstrap over scenarios, {CI_RESAMPLES} resamples, "
+                 f"seed {CI_SEED})")
+    return lines
 
 
 def format_tables(summary: dict) -> str:
@@ -201,6 +306,7 @@ def format_tables(summary: dict) -> str:
             f"{o['outside_route_lanes_pct']:>9.2f}{o['eval_time_s']:>9.3f}"
             + (f"{o.get('task_success_rate', float('nan')):>10.1f}" if with_task else "")
         )
+    lines += _ci_table(pols, nw)
     groups = [g for g in BEHAVIOR_ORDER if any(g in s["by_behavior"] for s in pols.values())]
     head = f"{'SR % by behaviour':<{nw}}" + "".join(f"{g:>7}" for g in groups)
     lines += ["", head, "-" * len(head)]
@@ -223,8 +329,8 @@ def format_tables(summary: dict) -> str:
         lines += ["", head, "-" * len(head)]
         for name, s in pols.items():
             ab = s["overall"].get("abilities", {})
-            cells = "".join(f"{ab[a]:>{aw}.1f}" if a in ab else f"{'-':>{aw}}" for a in names)
-            lines.append(f"{name:<{nw}}{cells}{ab.get('mean', float('nan')):>8.1f}")
+            cells = "".join(f"{100 * ab[a]:>{aw}.1f}" if a in ab else f"{'-':>{aw}}" for a in names)
+            lines.append(f"{name:<{nw}}{cells}{100 * ab.get('mean', float('nan')):>8.1f}")
     fine = (
         ("dev m", "position_deviation_mean_m", 8.3),
         ("km/h", "average_speed_kmh", 7.1),

@@ -4,11 +4,11 @@ Definitions: ``shared/reference/METRICS.md`` section 2 ("Comfortness/
 smoothness", "Efficiency"), from Bench2Drive 0.0.4
 ``tools/efficiency_smoothness_benchmark.py``.
 
-* ``savgol_filter``: Savitzky-Golay filtering as ``scipy.signal.savgol_filter``
-  with its default ``mode="interp"`` (least-squares polynomial coefficients;
-  the ``window // 2`` samples at each end come from the polynomial fitted to
-  the first / last window). scipy is not a dependency; the tests use it as
-  the oracle.
+* Savitzky-Golay smoothing is ``scipy.signal.savgol_filter`` itself, as
+  B2D calls it (default ``mode="interp"``: the ``window // 2`` samples at each
+  end come from the polynomial fitted to the first / last window), along the
+  last axis so a batch of chunks is filtered in one call. scipy comes with
+  JAX (a dependency of ``jax``).
 * ``b2d_comfort_checks`` / ``b2d_route_smoothness`` / ``b2d_smoothness``:
   the six bounds on one chunk, the fraction of passing 20-frame chunks of a
   route, the mean over routes.
@@ -17,12 +17,10 @@ smoothness", "Efficiency"), from Bench2Drive 0.0.4
 
 from __future__ import annotations
 
-import functools
-import math
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from scipy.signal import savgol_filter
 
 #: Strict bounds (low, high) of every smoothed signal [B2D]; units m/s^2,
 #: m/s^3, rad/s (B2D calls the smoothed yaw rate "yaw acc", bound 1.93).
@@ -40,65 +38,6 @@ B2D_WINDOW = 7
 B2D_POLYORDER = 2
 B2D_DELTA_S = 0.1
 B2D_CHUNK = 20
-
-
-@functools.lru_cache(maxsize=256)
-def _fit_weights(window: int, polyorder: int, at: tuple[float, ...], deriv: int, delta: float) -> np.ndarray:
-    """(len(at), window) weights: the ``deriv``-th derivative, at positions
-    ``at`` (in samples from the window's first sample), of the least-squares
-    polynomial of order ``polyorder`` through the window's samples.
-
-    Cached: a sweep filters thousands of chunks with the same few windows.
-    The returned array is read-only (shared between callers)."""
-    c = (window - 1) / 2.0
-    scale = max(c, 1.0)  # abscissae centred and scaled to [-1, 1]: a well-conditioned fit
-    u = (np.arange(window) - c) / scale
-    k = np.arange(polyorder + 1)
-    pinv = np.linalg.pinv(u[:, None] ** k)  # (p+1, window)
-    fac = np.array([math.factorial(j) / math.factorial(j - deriv) if j >= deriv else 0.0 for j in k])
-    s = (np.asarray(at, dtype=np.float64) - c) / scale
-    out = (fac * s[:, None] ** np.maximum(k - deriv, 0)) @ pinv / (delta * scale) ** deriv
-    out.setflags(write=False)
-    return out
-
-
-def savgol_filter(x, window_length: int, polyorder: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
-    """Savitzky-Golay filter along the last axis, equal to scipy's ``mode="interp"``.
-
-    Interior samples: the window's least-squares polynomial evaluated at the
-    window centre (for an even window, as scipy/ndimage: the window starts
-    ``window // 2 - 1`` samples before the output and the fit is evaluated
-    half a sample after it). The first and last ``window // 2`` samples: the
-    polynomial fitted to the first / last ``window_length`` samples.
-
-    Args:
-      x: (..., n) signals (any leading batch shape, e.g. (chunks, n)).
-      window_length: 1 <= window_length <= n.
-      polyorder: < window_length.
-      deriv: derivative order (0 = smoothing).
-      delta: sample spacing for derivatives (units of x per unit of time).
-
-    Returns:
-      (..., n) float64.
-    """
-    y = np.asarray(x, dtype=np.float64)
-    if y.ndim < 1:
-        raise ValueError(f"savgol_filter: x must have a time axis, got shape {y.shape}")
-    n, w = y.shape[-1], int(window_length)
-    if not 1 <= w <= n:
-        raise ValueError(f"savgol_filter: window_length must be in 1..len(x) = {n} (mode interp), got {w}")
-    if not 0 <= polyorder < w:
-        raise ValueError(f"savgol_filter: polyorder must be in 0..window_length-1 = {w - 1}, got {polyorder}")
-    h = w // 2
-    out = np.empty(y.shape)
-    if n > 2 * h:
-        first = 0 if w % 2 else 1  # window start offset of output h
-        centre = _fit_weights(w, polyorder, (h if w % 2 else h - 0.5,), deriv, delta)[0]
-        out[..., h : n - h] = sliding_window_view(y, w, axis=-1)[..., first : first + n - 2 * h, :] @ centre
-    if h:
-        out[..., :h] = y[..., :w] @ _fit_weights(w, polyorder, tuple(range(h)), deriv, delta).T
-        out[..., n - h :] = y[..., n - w :] @ _fit_weights(w, polyorder, tuple(range(w - h, w)), deriv, delta).T
-    return out
 
 
 def _phase_unwrap(a: np.ndarray) -> np.ndarray:
@@ -126,7 +65,7 @@ def chunk_signals(a, f, r, wz, delta_s: float) -> dict[str, np.ndarray]:
         raise ValueError(f"b2d comfort: needs >= {B2D_POLYORDER + 1} frames (SG order {B2D_POLYORDER}), got {n}")
 
     def sg(x, deriv=0):
-        return savgol_filter(x, w, B2D_POLYORDER, deriv=deriv, delta=delta_s)
+        return savgol_filter(x, w, B2D_POLYORDER, deriv=deriv, delta=delta_s, mode="interp", axis=-1)
 
     yaw = sg(_phase_unwrap(wz))
     lon = sg((a * f).sum(-1))
@@ -276,5 +215,4 @@ __all__ = [
     "b2d_smoothness",
     "chunk_checks",
     "chunk_signals",
-    "savgol_filter",
 ]

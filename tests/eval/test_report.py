@@ -13,8 +13,9 @@ pytest.importorskip("matplotlib")
 
 from drivee2e_jax.eval import report  # noqa: E402
 from drivee2e_jax.eval.results import BASE_COLUMNS, rows_to_csv  # noqa: E402
-from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, summarize  # noqa: E402
-from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, summarize, wilson_ci  # noqa: E402
+from drivee2e_jax.files import atomic_write_json, atomic_write_text  # noqa: E402
+from drivee2e_jax.metrics.driving_score import STATUS_NAMES  # noqa: E402
 
 #: scenarios.csv header of a real run (twin15 val), plus a column no code knows about.
 HEADER = (
@@ -22,8 +23,8 @@ HEADER = (
     "infraction_score,driving_score,success,status,episode_s,eval_time_s,collisions_pedestrian,collisions_vehicle,"
     "collisions_layout,red_light,outside_route_lanes,min_speed_infractions,route_dev,vehicle_blocked,route_timeout,"
     "invalid_action,collisions_cyclist_motorcycle"
-).split(",") + ["l2_1s_stp3"]
-COUNTS = HEADER[len(BASE_COLUMNS):-1]
+).split(",") + ["l2_1s_stp3", "longitudinal_jerk_mps", "jerk_lon_mean_mps3", "smoothness_pct"]
+COUNTS = HEADER[len(BASE_COLUMNS):-4]
 RUN_INFO = {"suite": "toy", "suite_version": "1", "split": "val", "num_scenarios": 10, "preset": "paper", "dt": 0.1,
             "control_every": 1, "latency": 0, "seed": 0}
 BEHAVIORS = ["COV"] * 4 + ["IPC"] * 4 + ["STR"] * 2
@@ -39,6 +40,7 @@ def _row(policy, i, status="Perfect", rc=100.0, collisions=0, l2=0.5, rep=None):
         "driving_score": rc * is_, "success": status == "Perfect", "status": status,
         "outside_route_lanes_pct": 0.0, "outside_route_lanes_m": 0.0, "episode_s": 10.0 + i, "eval_time_s": 0.1,
         **{c: 0 for c in COUNTS}, "collisions_vehicle": collisions, "l2_1s_stp3": l2,
+        "longitudinal_jerk_mps": -0.01 * i, "jerk_lon_mean_mps3": 1.0 + 0.1 * i, "smoothness_pct": 90.0 - i,
     }
     if rep is not None:
         row["repetition"] = rep
@@ -79,7 +81,7 @@ def _table_row(md: str, first_cell: str, after: str) -> list[str]:
 
 def _check_pngs(run: Path) -> dict[str, int]:
     inodes = {}
-    for name in ("sr_by_behavior", "ds_by_behavior", "metric_distributions"):
+    for name in ("sr_by_behavior", "ds_by_behavior", "infractions_per_km", "comfort"):
         png = run / "plots" / f"{name}.png"
         data = png.read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000, name
@@ -110,12 +112,13 @@ def test_one_repetition_tables_and_plots(tmp_path):
     assert _table_row(md, "status: Completed", "## Policy comparison") == ["1", "0"]
     # Behaviour groups in Table 5 order with their sizes; UT etc. absent from the suite are left out.
     sr = md[md.index("### Success rate SR %"):]
-    assert "| policy | COV (n=4) | IPC (n=4) | STR (n=2) | mean of groups |" in sr
+    assert "| policy | COV (n=4 †) | IPC (n=4 †) | STR (n=2 †) | mean of groups |" in sr
     assert _table_row(md, "`good`", "### Success rate SR %") == ["100.0", "50.0", "100.0", "83.3"]
     assert _table_row(md, "`bad`", "### Success rate SR %") == ["0.0", "100.0", "100.0", "66.7"]
     assert _table_row(md, "`bad`", "### Driving score DS") == ["25.00", "100.00", "100.00", "75.00"]
-    assert _table_row(md, "I01", "## Per intersection")[0] == "5"
-    assert _table_row(md, "rain", "## Per weather")[:3] == ["3", "100.0", "100.00"]
+    assert _table_row(md, "I01", "## Per intersection")[0] == "5 †"
+    assert _table_row(md, "rain", "## Per weather")[:3] == ["3 †", "100.0", "100.00"]
+    assert "† fewer than 10 episodes" in md[md.index("## Per weather"):md.index("## Infraction")]
     # Counts and the column no code knows about (mean ± sample std over scenarios).
     assert _table_row(md, "`collisions_vehicle`", "## Infraction") == ["1", "0"]
     assert "`red_light`" in md[md.index("Zero for every policy"):]
@@ -126,8 +129,8 @@ def test_one_repetition_tables_and_plots(tmp_path):
     assert "### `good`: 2 of 10 episodes unsuccessful" in md
     assert _table_row(md, "toy_0004", "### `good`")[3:] == ["Failed - TickRuntime", "50.0", "50.00", "—"]
     assert _table_row(md, "toy_0005", "### `good`")[-1] == "collisions_vehicle 1"
-    for img in ("plots/sr_by_behavior.png", "plots/ds_by_behavior.png", "plots/metric_distributions.png"):
-        assert f"]({img})" in md
+    for img in ("sr_by_behavior", "ds_by_behavior", "infractions_per_km", "comfort"):
+        assert f"](plots/{img}.png)" in md
     _check_pngs(run)
     _no_temp_files(run)
 
@@ -142,7 +145,8 @@ def test_repetitions_are_mean_and_std_over_repetitions(tmp_path):
     assert _table_row(md, "Scenarios", "## Policy comparison") == ["10.0 ± 0.0", "10.0 ± 0.0"]
     # COV: 4/4 then 3/4.
     assert _table_row(md, "`good`", "### Success rate SR %")[:2] == ["87.5 ± 17.7", "50.0 ± 0.0"]
-    assert "COV (n=4)" in md
+    assert "COV (n=4 †)" in md
+    assert "| SR 95 % CI |" not in md and "| DS 95 % CI |" not in md  # per repetition: not averaged
     assert _table_row(md, "status: Perfect", "## Policy comparison") == ["7.5 ± 0.7", "6.0 ± 0.0"]
     assert _table_row(md, "`collisions_vehicle`", "## Infraction") == ["1.0 ± 0.0", "0.0 ± 0.0"]
     # Off-lane % is not a CSV column: unknown when recomputed, not a made-up 0.
@@ -180,3 +184,77 @@ def test_atomic_write_gives_the_umask_mode_and_leaves_no_temp_file(tmp_path):
         os.umask(old)
     assert (os.stat(tmp_path / "a.txt").st_mode & 0o777) == 0o644  # mkstemp alone gives 0o600
     assert [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+
+
+def test_legend_explains_codes_statuses_and_every_abbreviation(tmp_path):
+    md = report.write_report(_write_run(tmp_path / "run")).read_text()
+    legend = md[md.index("## Legend"):]
+    first_cells = {ln.split("|")[1].strip() for ln in legend.splitlines() if ln.startswith("| ")}
+    # the behaviour groups of the run (and only those), the statuses that occur
+    assert {"COV", "IPC", "STR"} <= first_cells and "UT" not in first_cells
+    assert {"Perfect", "Completed", "Failed - TickRuntime"} <= first_cells
+    # every abbreviation in the comparison labels and group headers is in the legend
+    for abbr in ("SR %", "DS", "RC %", "IS", "95 % CI", "n", "†", "Jerk m/s³", "mean of groups",
+                 "Off-lane %", "km driven", "DS std over scenarios", "Invalid-action steps"):
+        assert abbr in first_cells, abbr
+    assert "`jerk_lon_mean_mps3`" in first_cells and "`collisions_vehicle`" in first_cells
+    assert "Wilson" in legend and f"{report.CI_RESAMPLES} resamples" in legend
+    # the help tables cover every code the project can produce
+    assert set(report.BEHAVIOR_HELP) == set(BEHAVIOR_ORDER)
+    assert set(report.STATUS_HELP) == set(STATUS_NAMES)
+
+
+def test_one_jerk_column_in_the_tables(tmp_path):
+    md = report.write_report(_write_run(tmp_path / "run")).read_text()
+    assert "| `longitudinal_jerk_mps` |" not in md  # Behavior Metrics' eq. (2): scenarios.csv only
+    assert _table_row(md, "`jerk_lon_mean_mps3`", "## Other")[0].startswith("1.45 ± ")  # mean of 1.0..1.9
+    assert _table_row(md, "Jerk m/s³", "## Policy comparison") == ["1.45", "1.45"]  # summary.json's mean
+    assert "longitudinal_jerk_mps" in md[md.index("## Legend"):]  # said where it went
+
+
+def test_intervals_overall_and_for_groups_of_ten_or_more(tmp_path):
+    # 24 scenarios: STR 12 (gets intervals), COV 12 (good fails 3 of them)
+    rows = {"good": [], "bad": []}
+    for i in range(24):
+        beh = "STR" if i < 12 else "COV"
+        for p in rows:
+            r = _row(p, 0, "Failed - TickRuntime" if (p == "good" and i >= 21) else "Perfect",
+                     rc=40.0 if (p == "good" and i >= 21) else 100.0, collisions=int(p == "bad" and i == 0))
+            rows[p].append({**r, "scenario_id": f"t_{i:03d}", "behavior": beh, "intersection_id": f"I{i % 3}"})
+    info = {**RUN_INFO, "num_scenarios": 24}
+    run = tmp_path / "big"
+    atomic_write_json(run / "run.json", info)
+    summary = summarize(rows, info)
+    atomic_write_json(run / "summary.json", summary)
+    atomic_write_text(run / "scenarios.csv", rows_to_csv([r for rs in rows.values() for r in rs], HEADER))
+    md = report.write_report(run).read_text()
+    lo, hi = wilson_ci(21, 24)
+    assert _table_row(md, "SR 95 % CI", "## Policy comparison")[0] == f"[{lo:.1f}, {hi:.1f}]"
+    ds = summary["policies"]["good"]["overall"]["driving_score_ci95"]
+    assert _table_row(md, "DS 95 % CI", "## Policy comparison")[0] == f"[{ds[0]:.2f}, {ds[1]:.2f}]"
+    assert "COV (n=12) | STR (n=12)" in md and "†" not in md[md.index("## Per behaviour"):md.index("## Per inter")]
+    lo, hi = wilson_ci(9, 12)
+    assert _table_row(md, "`good`", "### Success rate SR %")[0] == f"75.0 [{lo:.1f}, {hi:.1f}]"
+    assert _table_row(md, "`good`", "### Success rate SR %")[1] == "100.0 [75.8, 100.0]"
+    # intersections of 8: flagged, no interval (good fails t_021 there)
+    assert _table_row(md, "I0", "## Per intersection")[:2] == ["8 †", "87.5"]
+
+
+def test_infractions_per_km_and_no_plot_without_events(tmp_path):
+    rows = _policies()["good"]
+    km = sum(r["route_length_m"] * r["route_completion"] / 100 for r in rows) / 1000
+    assert report.per_km(report_rows(rows), "collisions_vehicle") == pytest.approx(1 / km)
+    assert report.per_km(report_rows(rows[:1]), "red_light") == 0.0
+    clean = {"good": [_row("good", i) for i in range(10)]}
+    run = tmp_path / "clean"
+    atomic_write_json(run / "run.json", RUN_INFO)
+    atomic_write_json(run / "summary.json", summarize(clean, RUN_INFO))
+    atomic_write_text(run / "scenarios.csv", rows_to_csv(clean["good"], HEADER))
+    md = report.write_report(run).read_text()
+    assert not (run / "plots" / "infractions_per_km.png").exists() and "infractions_per_km.png" not in md
+    assert (run / "plots" / "comfort.png").read_bytes().startswith(PNG)
+
+
+def report_rows(rows: list[dict]) -> list[dict]:
+    """Rows as ``load_rows`` gives them (floats)."""
+    return [{k: float(v) if isinstance(v, int | float) else v for k, v in r.items()} for r in rows]

@@ -11,7 +11,13 @@ Inputs (each path one recording, or a folder searched for recordings):
   the city frame, a higher rate) and ``map/log_map_archive_*.json``. Cuboids
   are moved to the city frame with the ego pose of the same ``timestamp_ns``.
   ``num_interior_pts == 0`` (no lidar return inside the box) is written as
-  not visible.
+  not visible. ``annotations_with_ego.feather`` (the AV2 scenario-mining /
+  RefAV variant: the same cuboids plus one row per annotated timestamp for
+  the ego itself, ``category`` ``"EGO_VEHICLE"``, a per-log random
+  ``track_uuid``, box at the ego-frame origin) is read the same way; its
+  ego rows (``EGO_CATEGORY``) are dropped, since the ego comes from the poses
+  and an agent there would overlap it. A folder holding both files is read
+  from ``annotations.feather``.
 
 The ego pose is that of the AV2 ego-vehicle frame, whose origin is the centre
 of the rear axle; the written ego box centre is ``EGO_CENTER_OFFSET_M``
@@ -89,6 +95,10 @@ MAP_RADIUS_M = 100.0
 FORECAST_DT = 0.1
 FORECAST_COLUMNS = ("track_id", "object_type", "timestep", "position_x", "position_y", "heading",
                     "velocity_x", "velocity_y", "scenario_id")
+#: Annotation file names of a sensor-log folder, in order of preference.
+ANNOTATION_FILES = ("annotations.feather", "annotations_with_ego.feather")
+#: The ``category`` of the ego's own rows in ``annotations_with_ego.feather``.
+EGO_CATEGORY = "EGO_VEHICLE"
 ANNOTATION_COLUMNS = ("timestamp_ns", "track_uuid", "category", "length_m", "width_m", "height_m",
                       "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m", "num_interior_pts")
 POSE_COLUMNS = ("timestamp_ns", "qw", "qx", "qy", "qz", "tx_m", "ty_m", "tz_m")
@@ -105,17 +115,23 @@ def _units(path: Path) -> list[tuple[str, Path]]:
     if path.is_file():
         if path.suffix == ".parquet":
             return [("forecast", path)]
-        if path.name == "annotations.feather":
+        if path.name in ANNOTATION_FILES:
             return [("sensor", path.parent)]
-        raise DriveE2EError(f"{path}: expected an AV2 scenario_<id>.parquet, an annotations.feather, "
-                            "or a folder holding them")
-    if (path / "annotations.feather").is_file():
+        raise DriveE2EError(f"{path}: expected an AV2 scenario_<id>.parquet, an annotations.feather "
+                            "(or annotations_with_ego.feather), or a folder holding them")
+    if _annotation_file(path) is not None:
         return [("sensor", path)]
     found = sorted(path.rglob("scenario_*.parquet"))
-    units = [("forecast", p) for p in found] + [("sensor", p.parent) for p in sorted(path.rglob("annotations.feather"))]
+    logs = sorted({p.parent for name in ANNOTATION_FILES for p in path.rglob(name)})
+    units = [("forecast", p) for p in found] + [("sensor", p) for p in logs]
     if not units:
-        raise DriveE2EError(f"{path}: no AV2 scenario_*.parquet or annotations.feather found")
+        raise DriveE2EError(f"{path}: no AV2 scenario_*.parquet or annotations(_with_ego).feather found")
     return units
+
+
+def _annotation_file(folder: Path) -> Path | None:
+    """The sensor log's annotation file (``ANNOTATION_FILES`` order), or None."""
+    return next((folder / n for n in ANNOTATION_FILES if (folder / n).is_file()), None)
 
 
 def _map_file(folder: Path) -> Path:
@@ -285,12 +301,19 @@ def _quat_to_matrix(qw, qx, qy, qz) -> np.ndarray:
     ], axis=1)
 
 
+def _without_ego(ann: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The annotation columns without the ego's own rows (``category == EGO_CATEGORY``)."""
+    keep = ann["category"].astype(str) != EGO_CATEGORY
+    return ann if keep.all() else {k: v[keep] for k, v in ann.items()}
+
+
 def _sensor(folder: Path, options: ImportOptions):
-    ann_path, pose_path = folder / "annotations.feather", folder / "city_SE3_egovehicle.feather"
+    ann_path = _annotation_file(folder) or folder / ANNOTATION_FILES[0]
+    pose_path = folder / "city_SE3_egovehicle.feather"
     for p in (ann_path, pose_path):
         if not p.is_file():
             raise DriveE2EError(f"{folder}: missing {p.name}; expected an AV2 sensor log folder")
-    ann = common.read_table(ann_path, ANNOTATION_COLUMNS)
+    ann = _without_ego(common.read_table(ann_path, ANNOTATION_COLUMNS))
     pose = common.read_table(pose_path, POSE_COLUMNS)
     if len(ann["timestamp_ns"]) == 0:
         raise DriveE2EError(f"{ann_path}: no rows; expected one cuboid per track and timestamp")

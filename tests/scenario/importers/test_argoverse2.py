@@ -203,6 +203,50 @@ def test_tiny_sensor_log_errors(tmp_path):
         load("argoverse2", [folder], ImportOptions())
 
 
+def with_ego_rows(folder: Path) -> Path:
+    """``tiny_sensor``'s log as the scenario-mining variant: ``annotations_with_ego.feather`` = the cuboids plus
+    the ego's own rows (category EGO_VEHICLE, a random uuid, a box at the ego-frame origin), and no
+    ``annotations.feather``."""
+    ann = feather.read_table(folder / "annotations.feather").to_pydict()
+    ts = sorted(set(ann["timestamp_ns"]))
+    ego = {"timestamp_ns": ts, "track_uuid": ["5d2c7d1e-0d3e-4f1e-9a53-ego000000000"] * len(ts),
+           "category": [argoverse2.EGO_CATEGORY] * len(ts), "length_m": [4.877] * len(ts),
+           "width_m": [2.0] * len(ts), "height_m": [1.473] * len(ts), "qw": [1.0] * len(ts),
+           **{k: [0.0] * len(ts) for k in ("qx", "qy", "qz", "tx_m", "ty_m", "tz_m")},
+           "num_interior_pts": [1] * len(ts)}
+    both = {k: list(v) + list(ego[k]) for k, v in ann.items()}
+    feather.write_feather(pa.table(both), folder / "annotations_with_ego.feather")
+    (folder / "annotations.feather").unlink()
+    return folder
+
+
+def test_annotations_with_ego_import_like_annotations(tmp_path):
+    want = load("argoverse2", [tiny_sensor(tmp_path / "plain")], ImportOptions())
+    folder = with_ego_rows(tiny_sensor(tmp_path / "logs" / "mined"))
+    for path in (folder, folder / "annotations_with_ego.feather", tmp_path / "logs"):  # the folder, the file, a search
+        r = load("argoverse2", [path], ImportOptions())
+        valid(r)
+        (s,) = r.scenarios
+        (w,) = want.scenarios
+        # the same agents as from annotations.feather: the ego rows became neither an agent nor a skipped track
+        assert sorted(r.meta["track_ids"][s.scenario_id].values()) == sorted(want.meta["track_ids"][w.scenario_id].values())
+        assert len(s.tracks) == len(w.tracks) == 2
+        assert not any(argoverse2.EGO_CATEGORY in str(k) for k in r.skipped), r.skipped
+        ego = next(t for t in s.tracks if t.track_id == 0)
+        for t in s.tracks:
+            np.testing.assert_allclose(t.xy, next(u for u in w.tracks if u.track_id == t.track_id).xy, atol=1e-9)
+            if t.track_id != 0:  # nothing sits on the ego
+                assert np.min(np.linalg.norm(t.xy - ego.xy, axis=1)) > 3.0
+
+
+def test_annotations_file_is_preferred_and_a_folder_without_either_fails(tmp_path):
+    folder = tiny_sensor(tmp_path / "log")
+    feather.write_feather(pa.table({"x": [1]}), folder / "annotations_with_ego.feather")  # unreadable as annotations
+    assert len(load("argoverse2", [folder], ImportOptions()).scenarios) == 1  # annotations.feather read
+    with pytest.raises(DriveE2EError, match=r"annotations\(_with_ego\)\.feather"):
+        load("argoverse2", [_empty(tmp_path / "none")], ImportOptions())
+
+
 # ---------------------------------------------------------------- the shared samples
 
 
