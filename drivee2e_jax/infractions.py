@@ -17,8 +17,8 @@ import jax.numpy as jnp
 from flax import struct
 
 from drivee2e_jax import geometry
-from drivee2e_jax.replay import AgentStates
-from drivee2e_jax.types import Category, CollisionClass, EgoState, MapData, Marking, SignalState
+from drivee2e_jax.replay import SNAP, AgentStates
+from drivee2e_jax.types import Category, CollisionClass, EgoState, MapData, Marking, SignalState, Tracks
 
 # Collision classes as CARLA's collision test names them.
 CLASS_WALKER = int(CollisionClass.PEDESTRIAN)
@@ -77,6 +77,11 @@ class StepFacts:
     lane_invasion_marking: jnp.ndarray
 
 
+#: At most this many agents per episode are exempt for a logged overlap with
+#: the ego that is there when they first appear together
+#: (``logged_overlap_spans``).
+MAX_LOGGED_OVERLAPS = 8
+
 #: Agents tested for contact each tick: the nearest by centre distance. An
 #: overlapping agent is within half the sum of the two box diagonals (< 9 m
 #: for a bus against a car), so it is among these unless 16 others are closer.
@@ -108,6 +113,86 @@ def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, t
     cat = category[i]
     cls = jnp.where(cat == Category.PEDESTRIAN, CLASS_WALKER, CLASS_VEHICLE)
     return overlap.any(), track_id[i], cls.astype(jnp.int32), cat.astype(jnp.int32)
+
+
+def logged_overlap_spans(tracks: Tracks, ego_index, ego_lw):
+    """Where the LOGGED ego box already overlaps another agent's logged box.
+
+    A non-reactive replay cannot undo a contact the log starts with (an
+    annotation overlap, an agent detected inside the ego's box): the other
+    agent drives on as recorded, so a policy that follows the log would be
+    charged for the data. As NAVSIM does (``PDMObservation.update`` collects
+    the tracks already intersecting the ego at the current frame and
+    ``PDMScorer._calculate_no_at_fault_collision`` skips them), such a pair
+    is exempt from the contact test while that logged overlap lasts.
+
+    Precisely: for agent a, let k0 be the first log step at which both a
+    and the ego are valid. If their logged boxes overlap at k0 (depth >
+    ``geometry.EPS``), the pair is exempt from k0 through the last step of
+    that run of overlapping steps (up to the first step at which they no
+    longer overlap, or a sample is missing). An overlap that begins later,
+    after the two were apart, is a collision in the log: it is not exempt
+    (``curation.check_overlaps`` warns about every logged overlap).
+
+    Computed once per episode (at reset): one box test per agent at its k0,
+    then the T steps of at most ``MAX_LOGGED_OVERLAPS`` agents that overlap
+    there (more than that many boxes inside the ego's at first sight is no
+    log; the extra ones are not exempt).
+
+    Args:
+      tracks: the scenario's ``types.Tracks`` (A agents, T log steps).
+      ego_index: () int32 the ego's row.  ego_lw: (2,) ego length, width, m.
+
+    Returns: (A, 2) int32 [first, last] exempt log steps per agent; [T, -1]
+      (empty) for an agent not overlapping the ego when first seen with it,
+      and for the ego's own row.
+    """
+    num_agents, num_steps = tracks.valid.shape
+    ego_xy, ego_yaw, ego_ok = tracks.xy[ego_index], tracks.yaw[ego_index], tracks.valid[ego_index]
+    others = jnp.arange(num_agents) != ego_index
+    steps = jnp.arange(num_steps)
+    both = tracks.valid & ego_ok[None] & others[:, None]  # (A, T)
+    k0 = jnp.where(both, steps, num_steps).min(axis=1)  # (A,) first common step (T: never)
+    kk = jnp.minimum(k0, num_steps - 1)
+    rows = jnp.arange(num_agents)
+    born = jax.vmap(geometry.boxes_overlap, in_axes=(0, 0, None, 0, 0, 0))(
+        ego_xy[kk], ego_yaw[kk], ego_lw, tracks.xy[rows, kk], tracks.yaw[rows, kk], tracks.size[:, :2]
+    ) & (k0 < num_steps)
+    m = min(MAX_LOGGED_OVERLAPS, num_agents)
+    _, sel = jax.lax.top_k(born.astype(jnp.float32), m)  # the born-overlapping rows first
+
+    def run_end(r):
+        ov = jax.vmap(geometry.boxes_overlap, in_axes=(0, 0, None, 0, 0, None))(
+            ego_xy, ego_yaw, ego_lw, tracks.xy[r], tracks.yaw[r], tracks.size[r, :2]
+        ) & both[r]
+        return jnp.where((steps > k0[r]) & ~ov, steps, num_steps).min()  # first step apart again
+
+    end = jax.vmap(run_end)(sel)
+    ok = born[sel]
+    spans = jnp.tile(jnp.array([[num_steps, -1]], jnp.int32), (num_agents, 1))
+    first = jnp.where(ok, k0[sel], num_steps)
+    last = jnp.where(ok, end - 1, -1)
+    return spans.at[sel].set(jnp.stack([first, last], axis=-1).astype(jnp.int32))
+
+
+def logged_overlap_exempt(spans, t, dt_log):
+    """(k,) bool: the rows of ``spans`` (k, 2) whose logged overlap lasts at ``t``.
+
+    ``t`` (s) counts as inside [first, last] (log steps of ``dt_log`` s) when
+    either log sample bracketing it is: a time within ``replay.SNAP`` steps of
+    a sample is that sample, as ``replay.agents_at`` treats it.
+    """
+    u = t / dt_log
+    lo = jnp.floor(u + SNAP)
+    hi = jnp.ceil(u - SNAP)
+    return (hi >= spans[:, 0]) & (lo <= spans[:, 1])
+
+
+def logged_overlap_count(spans, t_end, dt_log):
+    """() int32 agents with an exempt logged overlap (``spans`` (A, 2) of
+    ``logged_overlap_spans``) beginning by ``t_end`` s, on a log of step ``dt_log`` s."""
+    begun = (spans[:, 0] <= spans[:, 1]) & (spans[:, 0] <= jnp.floor(t_end / dt_log + SNAP))
+    return jnp.sum(begun).astype(jnp.int32)
 
 
 def obstacle_sat(map_data: MapData) -> geometry.PolygonSAT:

@@ -88,6 +88,10 @@ class SimContext:
       ego_lw:    (2,) float32 ego length and width, m.
       speed_limit: (R,) float32 speed limit along the route, m/s.
       obstacles: (O, ...) ``geometry.PolygonSAT`` of the static obstacles.
+      log_overlap: (A, 2) int32 [first, last] log steps during which the
+                 LOGGED ego box already overlaps each agent's logged box
+                 ([T, -1]: none); a contact with that agent is ignored
+                 meanwhile (``infractions.logged_overlap_spans``).
     """
 
     lanes: jnp.ndarray
@@ -97,6 +101,7 @@ class SimContext:
     ego_lw: jnp.ndarray
     speed_limit: jnp.ndarray
     obstacles: geometry.PolygonSAT
+    log_overlap: jnp.ndarray
 
 
 @struct.dataclass
@@ -309,12 +314,15 @@ class Simulator:
             ego_lw=tr.size[i, :2],
             speed_limit=_route_speed_limits(scenario, lanes),
             obstacles=infractions.obstacle_sat(scenario.map),
+            log_overlap=infractions.logged_overlap_spans(tr, i, tr.size[i, :2]),
         )
+        n_overlaps = infractions.logged_overlap_count(
+            ctx.log_overlap, self.episode_steps(scenario) * self.config.dt, scenario.dt_log)
         key, k_obs = jax.random.split(key)
         state = SimState(
             ego=ego,
             step=jnp.zeros((), jnp.int32),
-            episode=ep.init(scenario.route, self.config.score),
+            episode=ep.init(scenario.route, self.config.score, log_overlaps=n_overlaps),
             controller=ctl.init_controller_state(self.config.controller),
             ctx=ctx,
             key=key,
@@ -388,8 +396,10 @@ class Simulator:
         tr = scenario.tracks
         lw = state.ctx.ego_lw
         near, near_ok = infractions.nearest_rows(ego, agents)
+        # A pair already overlapping in the log is not tested while that lasts.
+        exempt = infractions.logged_overlap_exempt(state.ctx.log_overlap[near], ego.t, scenario.dt_log)
         hit, hit_id, hit_cls, hit_cat = infractions.agent_contacts(
-            ego, lw, agents, tr.size, tr.category, tr.track_id, near, near_ok
+            ego, lw, agents, tr.size, tr.category, tr.track_id, near, near_ok & ~exempt
         )
         red, red_i, red_lines = infractions.red_light_crossing(
             state.ego, ego, lw[0], scenario.map, state.ctx.stop_dir, signals

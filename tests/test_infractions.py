@@ -12,7 +12,11 @@ from shapely.geometry import LineString, Point
 from drivee2e_jax import geometry as geo
 from drivee2e_jax import infractions as inf
 from drivee2e_jax.dynamics import ego_from_log
-from drivee2e_jax.types import Marking
+from drivee2e_jax.eval.closedloop import evaluate
+from drivee2e_jax.policy import load_policy, resolve_policy_path
+from drivee2e_jax.records import TrackRecord
+from drivee2e_jax.types import Marking, Tracks
+from tests.helpers import sim_scenarios as ss
 
 LW = jnp.array([4.6, 2.0])
 
@@ -88,3 +92,84 @@ def test_matches_shapely_corner_paths(x, y, yaw, dx, dy, dyaw, lx, ly, lang):
     want = any(p.crosses(line) for p in paths)
     got, _ = _call(prev, ego, [np.stack([a, b])], [Marking.SOLID])
     assert got == want
+
+
+# ---------------------------------------------------------------- overlaps already in the log
+
+
+def _tracks(xs, valid=None):
+    """Cars on y = 0 heading +x: xs (A, T) centre x, m; row 0 is the ego (4.6 x 2.0 m)."""
+    xs = np.asarray(xs, np.float32)
+    a, t = xs.shape
+    valid = np.ones((a, t), bool) if valid is None else np.asarray(valid, bool)
+    size = np.tile(np.array([[4.6, 2.0, 1.5]], np.float32), (a, 1))
+    return Tracks(xy=jnp.asarray(np.stack([xs, np.zeros_like(xs)], -1)), yaw=jnp.zeros((a, t)),
+                  vel=jnp.zeros((a, t, 2)), size=jnp.asarray(size), category=jnp.zeros(a, jnp.int32),
+                  valid=jnp.asarray(valid), visible=jnp.asarray(valid), quality=jnp.asarray(valid),
+                  track_id=jnp.arange(a, dtype=jnp.int32))
+
+
+def test_logged_overlap_spans_only_exempt_overlaps_present_when_first_seen_together():
+    t = 12
+    ego = np.arange(t, dtype=float)  # 1 m per step
+    far = ego + 10.0
+    touching = ego + 3.0  # 3 m apart, boxes 4.6 m long: overlapping
+    born = np.where(np.arange(t) < 5, touching, far)  # overlapping at steps 0..4, then apart
+    runs_in = np.where(np.arange(t) >= 6, touching, far)  # apart, then overlapping from step 6: a collision
+    flicker = np.where(np.isin(np.arange(t), [0, 1, 3, 4]), touching, far)  # first run 0..1 only
+    late = touching  # overlapping, but present only from step 4 (appears inside the ego's box)
+    late_valid = np.arange(t) >= 4
+    valid = np.ones((6, t), bool)
+    valid[5] = late_valid
+    tr = _tracks([ego, born, runs_in, far, flicker, late], valid)
+    spans = np.asarray(jax.jit(inf.logged_overlap_spans)(tr, 0, jnp.array([4.6, 2.0])))
+    assert spans.tolist() == [[t, -1], [0, 4], [t, -1], [t, -1], [0, 1], [4, t - 1]]
+    # the same rows with the ego elsewhere: nothing overlaps
+    assert np.asarray(inf.logged_overlap_spans(_tracks([ego + 50, born, runs_in]), 0, jnp.array([4.6, 2.0]))).tolist() \
+        == [[t, -1]] * 3
+
+
+def test_at_most_max_logged_overlaps_agents_are_exempt():
+    t, n = 6, inf.MAX_LOGGED_OVERLAPS + 2
+    ego = np.arange(t, dtype=float)
+    tr = _tracks([ego] + [ego + 0.1 * i for i in range(1, n + 1)])  # all inside the ego's box throughout
+    spans = np.asarray(inf.logged_overlap_spans(tr, 0, jnp.array([4.6, 2.0])))
+    assert sorted(map(tuple, spans[1:].tolist())).count((0, t - 1)) == inf.MAX_LOGGED_OVERLAPS
+    assert int(inf.logged_overlap_count(jnp.asarray(spans), jnp.float32(0.5), jnp.float32(1.0))) \
+        == inf.MAX_LOGGED_OVERLAPS
+
+
+def test_logged_overlap_exempt_brackets_the_time_and_count_stops_at_the_end():
+    spans = jnp.array([[0, 4], [12, -1], [4, 11]], jnp.int32)
+    dt = jnp.float32(0.1)
+    assert np.asarray(inf.logged_overlap_exempt(spans, jnp.float32(0.4), dt)).tolist() == [True, False, True]
+    assert np.asarray(inf.logged_overlap_exempt(spans, jnp.float32(0.45), dt)).tolist() == [True, False, True]
+    assert np.asarray(inf.logged_overlap_exempt(spans, jnp.float32(0.5), dt)).tolist() == [False, False, True]
+    assert np.asarray(inf.logged_overlap_exempt(spans, jnp.float32(0.35), dt)).tolist() == [True, False, True]
+    assert np.asarray(inf.logged_overlap_exempt(spans, jnp.float32(0.3), dt)).tolist() == [True, False, False]
+    assert int(inf.logged_overlap_count(spans, jnp.float32(0.3), dt)) == 1
+    assert int(inf.logged_overlap_count(spans, jnp.float32(0.4), dt)) == 2
+
+
+def _car(k, x_of_k):
+    k = np.asarray(k)
+    return TrackRecord(track_id=9, category="car", size=np.array([4.5, 1.9, 1.5]), t=np.round(k * ss.DT, 6),
+                       xy=np.stack([x_of_k(k), np.full(len(k), -1.75)], 1), yaw=np.zeros(len(k)),
+                       vel=np.zeros((len(k), 2)))
+
+
+def test_log_replay_is_not_charged_for_an_overlap_the_log_starts_with():
+    ego_x = lambda k: -40.0 + ss.EGO_SPEED * k * ss.DT  # noqa: E731  (ss.ego_track's path)
+    # Appears at t = 0.3 s 2 m ahead of the ego (boxes overlap), pulls away from t = 1.0 s.
+    born = _car(np.arange(3, 40), lambda k: ego_x(k) + 2.0 + np.maximum(k - 10, 0) * 0.5)
+    # Present from t = 0 s 8 m ahead, the ego runs into it from t = 0.3 s: a collision in the log.
+    runs_in = _car(np.arange(0, 40), lambda k: ego_x(k) + np.where(k < 3, 8.0, 2.0 + np.maximum(k - 10, 0) * 0.5))
+    recs = [ss.scenario("born_overlapping", [ss.ego_track(), born]), ss.scenario("runs_in", [ss.ego_track(), runs_in]),
+            ss.clean()]
+    out = evaluate(load_policy(resolve_policy_path("log_replay")), ss.build(recs), split=None)
+    rows = {r["scenario_id"]: r for r in out.rows}
+    assert (rows["born_overlapping"]["collisions_vehicle"], rows["born_overlapping"]["log_overlaps"]) == (0, 1)
+    assert rows["born_overlapping"]["driving_score"] == 100.0
+    assert (rows["runs_in"]["collisions_vehicle"], rows["runs_in"]["log_overlaps"]) == (1, 0)
+    assert (rows["clean"]["collisions_vehicle"], rows["clean"]["log_overlaps"], rows["clean"]["driving_score"]) \
+        == (0, 0, 100.0)

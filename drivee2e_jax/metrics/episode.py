@@ -49,6 +49,10 @@ class EpisodeCarry:
       done: () bool route ended (completed, deviated, blocked, timed out, cut).
       truncated: () bool ended by the episode cap / end of the log.
       t_end: () s simulated time when it ended (or now).
+      log_overlaps: () int32 agents whose LOGGED box already overlaps the
+        logged ego's when the two first appear together, by the end of the
+        episode (a property of the log, set at reset; contacts with them are
+        ignored while that overlap lasts: ``infractions.logged_overlap_spans``).
     """
 
     rc: cr.RouteCompletionCarry
@@ -68,6 +72,7 @@ class EpisodeCarry:
     done: jnp.ndarray
     truncated: jnp.ndarray
     t_end: jnp.ndarray
+    log_overlaps: jnp.ndarray
 
     @property
     def route_completion(self):
@@ -101,7 +106,9 @@ class StepEvents:
     invalid_action: jnp.ndarray
 
 
-def init(route: Route, cfg: ScoreConfig) -> EpisodeCarry:
+def init(route: Route, cfg: ScoreConfig, log_overlaps=0) -> EpisodeCarry:
+    """The criteria at the start of an episode. ``log_overlaps``: () int32
+    agents already overlapping the ego in the log (``EpisodeCarry``)."""
     i0 = jnp.zeros((), jnp.int32)
     f0 = jnp.zeros((), jnp.float32)
     b0 = jnp.zeros((), bool)
@@ -123,6 +130,7 @@ def init(route: Route, cfg: ScoreConfig) -> EpisodeCarry:
         done=b0,
         truncated=b0,
         t_end=f0,
+        log_overlaps=jnp.asarray(log_overlaps, jnp.int32),
     )
 
 
@@ -183,6 +191,7 @@ def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt,
         done=carry.done | ends,
         truncated=carry.truncated | (truncate & ~(completed | deviated | is_blocked | timed_out)),
         t_end=ego.t,
+        log_overlaps=carry.log_overlaps,
     )
     events = StepEvents(
         collision=ev_cls >= 0,
@@ -216,6 +225,8 @@ class EpisodeResult:
       min_speed_pct: (K,) float ego / surrounding-traffic speed per closed
         min-speed checkpoint, % (recorded whether or not it is penalised).
       min_speed_valid: (K,) bool the checkpoint closed with samples.
+      log_overlaps: () int32 agents overlapping the ego in the log itself
+        (``EpisodeCarry.log_overlaps``; not an infraction).
     """
 
     route_completion: jnp.ndarray
@@ -231,6 +242,7 @@ class EpisodeResult:
     episode_s: jnp.ndarray
     min_speed_pct: jnp.ndarray
     min_speed_valid: jnp.ndarray
+    log_overlaps: jnp.ndarray
 
 
 def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResult:
@@ -267,15 +279,18 @@ def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResu
         episode_s=carry.t_end,
         min_speed_pct=ms.values,
         min_speed_valid=ms.valid,
+        log_overlaps=carry.log_overlaps,
     )
 
 
 def counts_dict(res: EpisodeResult) -> dict[str, np.ndarray]:
-    """Host-side: count columns (``COUNT_COLUMNS``) as arrays over the batch."""
+    """Host-side: count columns (``COUNT_COLUMNS``, then ``log_overlaps``: the
+    agents overlapping the ego in the log, not an infraction) as arrays over the batch."""
     inf = np.asarray(res.infractions)
     out = {k: inf[..., INFRACTION_KEYS.index(k)] for k in COUNT_COLUMNS if k in INFRACTION_KEYS}
     out["invalid_action"] = np.asarray(res.invalid_action)
     out["collisions_cyclist_motorcycle"] = np.asarray(res.collisions_two_wheeler)
+    out["log_overlaps"] = np.asarray(res.log_overlaps)
     return out
 
 

@@ -28,8 +28,19 @@ Checks
   within ``LANE_ALIGN_MAX`` of the route's (the simulator's off-lane rule),
   except stretches shorter than ``MAX_OFF_LANE_M``.
 * **overlap** (:func:`check_overlaps`): the ego's logged box overlaps another
-  agent's box at the same step (annotation overlap; log replay will count it
-  as a collision).
+  agent's box at the same step (annotation overlap). An overlap present when
+  the two first appear together is ignored by the simulator while it lasts
+  (``infractions.logged_overlap_spans``); any other is a collision in the log
+  that log replay is charged for.
+
+Refusals
+--------
+:func:`fair_test_problems` says why a scenario cannot be a fair closed-loop
+test at all; the importers skip such a scenario with that reason
+(``importers.scenarios.windowed_scenarios``):
+
+* the logged ego travels less than ``MIN_EGO_TRAVEL_M`` (its route, waypoints
+  and destination, jitter-free: decimated to 2 m): nothing to drive.
 
 Bounds per category (speed m/s, |acceleration| m/s^2, |yaw rate| rad/s) are
 generous physical limits, not comfort limits: they catch annotation glitches
@@ -50,6 +61,7 @@ from drivee2e_jax.records import MapRecord, RouteRecord, ScenarioRecord, SuiteRe
 __all__ = [
     "Finding", "BOUNDS", "MIN_ROUTE_LENGTH_M", "route_lane_match", "route_problems", "check_completeness",
     "track_plausibility", "check_plausibility", "check_route", "check_overlaps", "curate_scenario", "curate_suite",
+    "MIN_EGO_TRAVEL_M", "ego_travel_m", "fair_test_problems",
 ]
 
 #: (max speed m/s, max |acceleration| m/s^2, max |yaw rate| rad/s or None) per category.
@@ -67,6 +79,14 @@ ACCEL_BASE_S = 0.5
 YAW_RATE_MIN_SPEED = 2.0  # m/s
 #: A route shorter than this is no benchmark case, m.
 MIN_ROUTE_LENGTH_M = 20.0
+#: An imported scenario whose logged ego travels less than this is refused, m.
+#: LB 2.0's RouteCompletionTest completes a route once RC > 99 % and the ego
+#: is within 10 m of its last point (``metrics.criteria.RC_DISTANCE_M``): on a
+#: shorter route the ego starts inside that radius and the route tests no
+#: driving. A standing ego's log (box jitter of a few cm) gives a route of
+#: ~0 m that not even its own replay completes (RC 0, ``Failed -
+#: TickRuntime``). The automatic ego choice asks more (``MIN_ROUTE_LENGTH_M``).
+MIN_EGO_TRAVEL_M = 10.0
 #: The simulator's off-lane rule (``infractions``): width / 2 + 0.5 m, lanes within 120 deg.
 LANE_MARGIN_M = 0.5
 LANE_ALIGN_MAX = math.radians(120.0)
@@ -334,6 +354,26 @@ def check_overlaps(s: ScenarioRecord) -> list[Finding]:
                                    f"{tr.category} box overlaps the ego's logged box"))
                 break
     return out
+
+
+def ego_travel_m(s: ScenarioRecord) -> float:
+    """How far the logged ego travels, m: the length of its route's waypoints
+    and destination (the logged path decimated to ~2 m, so box jitter of a
+    standing ego adds nothing; ``routes.build_route``)."""
+    pts = np.vstack([np.asarray(s.route.waypoints, np.float64).reshape(-1, 2),
+                     np.asarray(s.route.destination, np.float64).reshape(1, 2)])
+    return polyline_length(pts)
+
+
+def fair_test_problems(s: ScenarioRecord) -> list[str]:
+    """Why ``s`` cannot be a fair closed-loop test (empty: it can): an ego that
+    travels less than ``MIN_EGO_TRAVEL_M``. One line each; the importers skip
+    the scenario with them."""
+    travel = ego_travel_m(s)
+    if travel < MIN_EGO_TRAVEL_M:
+        return [f"the logged ego travels {travel:.1f} m; expected >= {MIN_EGO_TRAVEL_M:g} m "
+                "(a shorter route tests no driving)"]
+    return []
 
 
 def curate_scenario(s: ScenarioRecord, map_rec: MapRecord) -> list[Finding]:

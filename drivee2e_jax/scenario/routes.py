@@ -2,7 +2,8 @@
 path, densifying it for packing, and its high-level commands.
 
 * ``build_route(track, spacing_m=LOG_ROUTE_SPACING_M) -> RouteRecord``: an
-  imported ego's logged path decimated to ~``spacing_m`` (the importers).
+  imported ego's logged path decimated to ~``spacing_m``, its last waypoint
+  ``ROUTE_END_MARGIN_M`` short of the logged end (the importers).
 * ``route_heading_change(waypoints) -> float``: signed total heading change, rad.
 * ``densify_route(waypoints, spacing=ROUTE_STEP_M) -> (xy, arc)``: the packed
   route points (``pack``).
@@ -27,7 +28,7 @@ from drivee2e_jax.polyline import arc_length, densify_polyline, wrap_angle
 from drivee2e_jax.records import MapRecord, RouteRecord, TrackRecord
 
 __all__ = [
-    "ROUTE_STEP_M", "LOG_ROUTE_SPACING_M", "TWIN15_ROUTE_SPACING_M",
+    "ROUTE_STEP_M", "LOG_ROUTE_SPACING_M", "TWIN15_ROUTE_SPACING_M", "ROUTE_END_MARGIN_M",
     "build_route", "route_heading_change", "densify_route", "route_commands", "junction_area",
 ]
 
@@ -38,10 +39,37 @@ ROUTE_STEP_M = 1.0
 LOG_ROUTE_SPACING_M = 2.0
 #: Waypoint spacing of a twin15 route record, m (1.5-2 m; see ``twin15.assemble``).
 TWIN15_ROUTE_SPACING_M = 1.5
+#: How far before the logged ego's last position an imported route ends, m.
+#: LB 2.0's RouteCompletionTest passes a route point only once the ego is
+#: STRICTLY ahead of it, and a replay of the log ends exactly on the last
+#: logged position: a route ending there is never completed by the log
+#: itself (RC stops at the last point short of it, ``Failed - TickRuntime``).
+#: 0.5 m is far above the replay's tracking error at the end of the log and
+#: far below a route point step (``ROUTE_STEP_M``).
+ROUTE_END_MARGIN_M = 0.5
+
+
+def _cut_end(wp: np.ndarray, margin: float) -> np.ndarray:
+    """The polyline ``wp`` (n, 2) without its last ``margin`` m of arc (unchanged
+    when it is not longer than ``margin``)."""
+    arc = arc_length(wp)
+    end = arc[-1] - margin
+    if end <= 0.0:
+        return wp
+    j = int(np.searchsorted(arc, end, side="left"))  # first point at or past ``end``; j >= 1
+    r = (end - arc[j - 1]) / (arc[j] - arc[j - 1])
+    if r <= 0.0:
+        return wp[:j]
+    return np.vstack([wp[:j], wp[j - 1] + r * (wp[j] - wp[j - 1])])
 
 
 def build_route(track: TrackRecord, spacing_m: float = LOG_ROUTE_SPACING_M) -> RouteRecord:
-    """The ego's logged path, first to last sample, as route waypoints ~``spacing_m`` apart."""
+    """The ego's logged path, first to last sample, as route waypoints ~``spacing_m`` apart.
+
+    The last waypoint lies ``ROUTE_END_MARGIN_M`` before the logged end along
+    the path, so that replaying the log completes the route; ``source`` and
+    ``destination`` are the exact logged ends. An ego that moves less than
+    the margin keeps its whole (degenerate) path."""
     xy = np.asarray(track.xy, np.float64)
     if len(xy) == 0:
         raise DriveE2EError(f"track {track.track_id}: the ego track is empty; expected samples for a route")
@@ -57,6 +85,8 @@ def build_route(track: TrackRecord, spacing_m: float = LOG_ROUTE_SPACING_M) -> R
     wp = xy[keep]
     if len(wp) == 1:  # a standing ego: a degenerate route of one point, repeated
         wp = np.vstack([wp, wp])
+    else:
+        wp = _cut_end(wp, ROUTE_END_MARGIN_M)
     return RouteRecord(waypoints=wp.copy(), source=xy[0].copy(), destination=xy[-1].copy())
 
 

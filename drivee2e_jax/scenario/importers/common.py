@@ -91,9 +91,13 @@ Ego, route, behaviour
 ---------------------
 ``build_route(track, spacing_m=routes.LOG_ROUTE_SPACING_M) -> RouteRecord``: the ego's own
     logged path from its first to its last sample (as twin15 does), decimated to
-    ~``spacing_m``, with exact source and destination. The path is what the
+    ~``spacing_m``, with exact source and destination; the last waypoint lies
+    ``routes.ROUTE_END_MARGIN_M`` (0.5 m) before the destination so that the
+    log's replay passes it. The path is what the
     log replay drives; ``curation.route_lane_match`` snaps it to the map's lanes
-    to check it follows them (``curation.check_route``).
+    to check it follows them (``curation.check_route``). ``windowed_scenarios``
+    skips a scenario that ``curation.fair_test_problems`` refuses (an ego that
+    travels < ``curation.MIN_EGO_TRAVEL_M``).
 ``select_ego(tracks, map_rec, num_steps, dt) -> (track | None, reasons)``:
     the source benchmark's curation rule for a scenario without a recorded ego
     (see the function); ``reasons`` maps each rejected vehicle's id to why.

@@ -12,6 +12,7 @@ import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import BEHAVIORS, MapRecord, ScenarioRecord, TrackRecord
+from drivee2e_jax.scenario import curation
 from drivee2e_jax.scenario.routes import build_route
 
 from .behavior import PLAUSIBILITY_PREFIX, infer_behavior, select_ego
@@ -115,6 +116,8 @@ def windowed_scenarios(base_id: str, map_rec: MapRecord, tracks: list[TrackRecor
     source ids).
     ``signals``: the whole log's signal states (``SignalSource``), cut to each
     window by ``window_signals``; None: no signals.
+    A window whose scenario ``curation.fair_test_problems`` refuses (an ego
+    that barely moves, a collision in the log) becomes a Skipped with why.
     ``kwargs`` go to ``make_scenario`` (intersection_id, weather, time_of_day).
     """
     limit = options.max_scenarios if limit is None else limit
@@ -155,6 +158,11 @@ def windowed_scenarios(base_id: str, map_rec: MapRecord, tracks: list[TrackRecor
             continue
         s, why = make_scenario(sid, map_rec, cut, ego, dt, n, options,
                                signals=window_signals(signals, k0, k1, dt, num_steps), **kwargs)
+        unfair = curation.fair_test_problems(s)
+        if unfair:
+            skipped.append(Skipped(where, f"not a fair closed-loop test (ego track {name(ego)}): "
+                                          + "; ".join(unfair)))
+            continue
         notes.append(f"{s.scenario_id}: behaviour {s.behavior} ({why})")
         out.append(s)
     return out

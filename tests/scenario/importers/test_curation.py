@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 
 from drivee2e_jax.records import LaneRecord, MapRecord, RouteRecord, ScenarioRecord, TrackRecord
 from drivee2e_jax.scenario import curation
+from drivee2e_jax.scenario.importers.common import ImportOptions, windowed_scenarios
+from drivee2e_jax.scenario.routes import build_route
 
 DT = 0.1
 N = 50
@@ -149,3 +151,30 @@ def test_curate_suite_runs_over_every_scenario(tiny_suite):
     findings = curation.curate_suite(tiny_suite)
     assert all(f.scenario_id in {s.scenario_id for s in tiny_suite.scenarios} for f in findings)
     assert findings == curation.curate_suite(tiny_suite)  # deterministic
+
+
+def test_fair_test_refuses_an_ego_that_barely_moves():
+    standing = trk(0, np.tile([[5.0, 0.0]], (N, 1)) + np.random.default_rng(0).normal(0, 0.05, (N, 2)))  # jitter only
+    s = scen([standing], route=build_route(standing))
+    assert curation.ego_travel_m(s) < 1.0
+    (why,) = curation.fair_test_problems(s)
+    assert why.startswith("the logged ego travels 0.") and f">= {curation.MIN_EGO_TRAVEL_M:g} m" in why
+    short = trk(0, line(0, curation.MIN_EGO_TRAVEL_M - 0.5, N))
+    assert curation.fair_test_problems(scen([short], route=build_route(short)))
+    ok = trk(0, line(0, curation.MIN_EGO_TRAVEL_M + 0.5, N))
+    assert curation.ego_travel_m(scen([ok], route=build_route(ok))) == pytest.approx(curation.MIN_EGO_TRAVEL_M + 0.5)
+    assert curation.fair_test_problems(scen([ok], route=build_route(ok))) == []
+
+
+def test_importer_skips_an_unfair_window_with_the_reason():
+    # 10 s log: the ego stands for 5 s, then drives 30 m; a 5 s window each.
+    n = 100
+    x = np.where(np.arange(n) < 50, 0.0, (np.arange(n) - 49) * 0.6)
+    ego = trk(0, np.stack([x, np.zeros(n)], 1))
+    skipped, notes = [], []
+    out = windowed_scenarios("rec", lane_map(), [ego], 0, DT, n, ImportOptions(window_s=5.0), "rec.csv", skipped, notes)
+    assert [s.scenario_id for s in out] == ["rec_w01"]
+    (sk,) = skipped
+    assert sk.source == "rec.csv window 0-5 s"
+    assert sk.reason == ("not a fair closed-loop test (ego track 0): the logged ego travels 0.0 m; "
+                         f"expected >= {curation.MIN_EGO_TRAVEL_M:g} m (a shorter route tests no driving)")
