@@ -45,6 +45,13 @@ FRONT_BUCKETS = (("great", 20.0, 50.0), ("medium", 15.0, 20.0), ("short", 6.0, 1
 
 KMH_PER_MPS = 3.6
 
+#: ``constants.CARLA_INFRACTION_PENALTIES`` (BM's driving score factors per event).
+BM_PENALTIES = {"collision_walker": 0.5, "collision_vehicle": 0.6, "collision_static": 0.65, "wrong_turn": 0.7,
+                "time_out": 0.7, "red_light": 0.7}
+#: ``test_suite_manager_carla.py`` termination codes: 1 success, 2 wrong turn, 3 time out. The suite
+#: manager initialises the code to 3 and never changes it, so every run is scored as a time-out.
+BM_TERMINATION_SUCCESS, BM_TERMINATION_WRONG_TURN, BM_TERMINATION_TIME_OUT = 1, 2, 3
+
 
 # ---------------------------------------------------------------------------
 # Shared pieces
@@ -313,6 +320,56 @@ def bm_code_metrics(map_waypoints_xy, pose_xy, pose_time_s, speed_mps, controls,
 
 
 # ---------------------------------------------------------------------------
+# Route completion and driving score (controller_carla.py)
+# ---------------------------------------------------------------------------
+
+
+def bm_route_completion(effective_completed_distance_m: float, route_length_m: float) -> float:
+    """BM route completion: effective completed distance / route length, a fraction.
+
+    ``controller_carla.stop_recording_metrics``; not clipped (a route whose
+    covered waypoints exceed its nominal length scores > 1). NaN for a route
+    of length 0 (BM would divide by zero).
+    """
+    if not route_length_m > 0:
+        return float("nan")
+    return float(effective_completed_distance_m) / float(route_length_m)
+
+
+def bm_collision_class(actor_type_id: str) -> str:
+    """BM's class of a collided actor from its CARLA ``type_id``: the prefix
+    before the first dot, ``vehicle`` / ``walker``, anything else ``static``."""
+    prefix = actor_type_id.split(".")[0]
+    return prefix if prefix in ("vehicle", "walker") else "static"
+
+
+def bm_driving_score(route_completion: float, collisions_vehicle: int = 0, collisions_static: int = 0,
+                     collisions_walker: int = 0, red_lights: int = 0,
+                     termination_code: int = BM_TERMINATION_TIME_OUT) -> float:
+    """BM driving score (``controller_carla.stop_recording_metrics``).
+
+    ``RC * 0.6^veh * 0.65^static * 0.5^walker * 0.7^red * 0.7^wrong_turn *
+    0.7^time_out``, where wrong_turn = 1 iff ``termination_code`` is 2 and
+    time_out = 1 iff it is 3. The default 3 is what ``test_suite_manager_carla``
+    always passes (METRICS.md section 4), so every run carries the 0.7 factor.
+
+    Args:
+      route_completion: BM route completion, a fraction (``bm_route_completion``).
+      collisions_*: de-duplicated collision counts by ``bm_collision_class``.
+      red_lights: the brain's red-light counter.
+      termination_code: 1 success, 2 wrong turn, 3 time out (None-like values: no factor).
+
+    Returns: the score, same unit as ``route_completion`` (a fraction).
+    """
+    p = BM_PENALTIES
+    wrong_turn = int(termination_code == BM_TERMINATION_WRONG_TURN)
+    time_out = int(termination_code == BM_TERMINATION_TIME_OUT)
+    return float(route_completion * p["collision_vehicle"] ** collisions_vehicle
+                 * p["collision_static"] ** collisions_static * p["collision_walker"] ** collisions_walker
+                 * p["red_light"] ** red_lights * p["wrong_turn"] ** wrong_turn * p["time_out"] ** time_out)
+
+
+# ---------------------------------------------------------------------------
 # Project definitions for a simulated episode
 # ---------------------------------------------------------------------------
 
@@ -418,8 +475,12 @@ def episode_behavior(xy, speed_mps, dt_s: float, lane_offset_m, front_distance_m
 
 
 __all__ = [
+    "BM_PENALTIES",
     "FRONT_BUCKETS",
     "bm_code_metrics",
+    "bm_collision_class",
+    "bm_driving_score",
+    "bm_route_completion",
     "distinct_events",
     "episode_behavior",
     "front_distance_buckets",

@@ -15,7 +15,11 @@ into the columns a results row carries besides the leaderboard scores
 * Bench2Drive smoothness (``comfort``: % of 20-step chunks within its
   acceleration / jerk / yaw-rate bounds) and the route's efficiency (mean
   ego / traffic speed ratio over its min-speed checkpoints, values > 1000 %
-  ignored as B2D does; NaN without checkpoints).
+  ignored as B2D does; NaN without checkpoints);
+* with ``bm_scores=True``, ``BM_SCORE_COLUMNS``: Behavior Metrics' route
+  completion (effective distance / route length, a fraction) and driving
+  score (``behavior.bm_driving_score``: the episode's collisions by class
+  and red lights, with the time-out factor every BM run receives).
 
 ``COLUMNS`` lists them in CSV order; ``SUMMARY_COLUMNS`` those averaged in
 the run summary.
@@ -30,6 +34,7 @@ import jax
 import numpy as np
 
 from drivee2e_jax.metrics import behavior, comfort
+from drivee2e_jax.types import CollisionClass
 
 #: Behavior Metrics columns kept in results rows (paper definitions).
 BM_COLUMNS = (
@@ -48,6 +53,8 @@ BM_COLUMNS = (
 )
 #: All fine-grained columns, in CSV order.
 COLUMNS = BM_COLUMNS + ("jerk_lon_mean_mps3", "smoothness_pct", "efficiency_pct")
+#: Behavior Metrics route completion (fraction) and driving score (``bm_scores=True``).
+BM_SCORE_COLUMNS = ("bm_route_completion", "bm_driving_score")
 #: Columns averaged over scenarios in ``summary.json`` (NaN rows skipped).
 SUMMARY_COLUMNS = (
     "position_deviation_mean_m",
@@ -72,6 +79,7 @@ def episode_columns(
     dt_s: float,
     min_speed_pct=(),
     definition: Literal["paper", "code"] = "paper",
+    bm_scores: bool = False,
 ) -> dict[str, float]:
     """The fine-grained columns of one episode (``batch_columns`` with B = 1).
 
@@ -81,6 +89,8 @@ def episode_columns(
       route_length_m: m.  route_completion_pct: RC, %.  dt_s: sim step, s.
       min_speed_pct: the episode's closed min-speed checkpoint values, %.
       definition: Behavior Metrics definitions, "paper" (default) or "code".
+      bm_scores: add ``BM_SCORE_COLUMNS`` (reads ``events.collision_class``
+        and ``events.red_light`` too).
 
     Returns: ``{column: value}`` for every name in ``COLUMNS`` (floats; NaN
     where undefined, e.g. lane deviation when no aligned lane was ever near).
@@ -94,6 +104,7 @@ def episode_columns(
         min_speed_pct=ms,
         min_speed_valid=np.ones(ms.shape, bool),
         definition=definition,
+        bm_scores=bm_scores,
     )[0]
 
 
@@ -106,6 +117,7 @@ def batch_columns(
     min_speed_pct,
     min_speed_valid,
     definition: Literal["paper", "code"] = "paper",
+    bm_scores: bool = False,
 ) -> list[dict[str, float]]:
     """The fine-grained columns of a batch of episodes.
 
@@ -119,8 +131,10 @@ def batch_columns(
       route_length_m: (B,) m.  route_completion_pct: (B,) %.  dt_s: step, s.
       min_speed_pct: (B, Q) min-speed checkpoint values, %; min_speed_valid (B, Q) bool.
       definition: Behavior Metrics definitions, "paper" (default) or "code".
+      bm_scores: also ``BM_SCORE_COLUMNS`` (see ``bm_score_columns``).
 
-    Returns: one ``{column: value}`` dict per episode (``COLUMNS``; NaN where undefined).
+    Returns: one ``{column: value}`` dict per episode (``COLUMNS``, plus
+    ``BM_SCORE_COLUMNS`` with ``bm_scores``; NaN where undefined).
     """
     active = np.asarray(logs.active, bool)
     n_act = active.sum(axis=1)
@@ -144,9 +158,10 @@ def batch_columns(
                   np.asarray(min_speed_pct, np.float64), np.nan)
 
     out = []
+    names = COLUMNS + (BM_SCORE_COLUMNS if bm_scores else ())
     for i, n in enumerate(n_act):
         if n == 0:
-            out.append({c: math.nan for c in COLUMNS})
+            out.append({c: math.nan for c in names})
             continue
         invasions = _distinct_crossings(np.flatnonzero(invasion[i, :n]), dt_s)
         bm = behavior.episode_behavior(
@@ -160,8 +175,49 @@ def batch_columns(
         row["smoothness_pct"] = float(smooth[i])
         kept = ms[i][np.isfinite(ms[i])]
         row["efficiency_pct"] = float(kept.mean()) if len(kept) else math.nan
+        if bm_scores:
+            row.update(bm_score_columns(
+                xy[i, :n], collision[i, :n], np.asarray(logs.events.collision_class)[i, :n],
+                np.asarray(logs.events.red_light, bool)[i, :n], bm["effective_completed_distance_m"],
+                float(route_length_m[i]), definition))
         out.append(row)
     return out
+
+
+#: ``CollisionClass`` -> the ``behavior.bm_driving_score`` count it adds to (BM: by the
+#: actor's type prefix; anything neither vehicle nor walker is "static").
+_BM_CLASS = {int(CollisionClass.VEHICLE): "collisions_vehicle", int(CollisionClass.PEDESTRIAN): "collisions_walker",
+             int(CollisionClass.LAYOUT): "collisions_static", int(CollisionClass.OTHER): "collisions_static"}
+
+
+def bm_score_columns(xy, collision, collision_class, red_light, effective_m: float, route_length_m: float,
+                     definition: Literal["paper", "code"] = "paper") -> dict[str, float]:
+    """Behavior Metrics route completion and driving score of one episode.
+
+    Args:
+      xy: (T, 2) m, the episode's active steps.
+      collision: (T,) bool, a collision counted at that step (leaderboard rules).
+      collision_class: (T,) int ``CollisionClass`` of it.
+      red_light: (T,) bool, a red light run at that step.
+      effective_m: effective completed distance, m (``episode_behavior``).
+      route_length_m: m.
+      definition: "code" keeps only the collisions BM's de-duplication keeps
+        (> 1 m from the previous one; the first always), as the fine-grained
+        collision count does; "paper" all counted ones.
+
+    Returns: ``bm_route_completion`` (fraction) and ``bm_driving_score``
+    (fraction; ``behavior.bm_driving_score`` with termination code 3, the
+    time-out every BM run is scored with; no wrong-turn detection here).
+    """
+    steps = np.flatnonzero(collision)
+    if definition == "code":
+        steps = steps[behavior.distinct_events(xy[steps], first_ref_xy=None)]
+    counts = {"collisions_vehicle": 0, "collisions_walker": 0, "collisions_static": 0}
+    for c in np.asarray(collision_class)[steps]:
+        counts[_BM_CLASS.get(int(c), "collisions_static")] += 1
+    rc = behavior.bm_route_completion(effective_m, route_length_m)
+    ds = behavior.bm_driving_score(rc, red_lights=int(np.count_nonzero(red_light)), **counts)
+    return {"bm_route_completion": rc, "bm_driving_score": ds}
 
 
 def smoothness_pct(yaw, speed, n_active, dt_s: float, chunk: int = comfort.B2D_CHUNK) -> np.ndarray:

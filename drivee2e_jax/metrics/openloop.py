@@ -10,10 +10,21 @@ Pure JAX functions (numpy inputs work too) with fixed shapes. Symbols:
 Frames:
 
 * project ego frame (``box_collisions``, the driver): x forward, y left, m;
-* UniAD planning frame (the ``uniad_*`` raster functions): the coordinates as
-  UniAD's ``PlanningMetric`` receives them, x lateral, y forward, m. Its two x
-  sign flips cancel, so x is used as passed in; ``ego_to_uniad`` maps a
-  project ego-frame trajectory into it (x right = -y left).
+* UniAD planning frame (the ``uniad_*`` and ``vad_*`` raster functions): the
+  coordinates as UniAD's / VAD's ``PlanningMetric`` receives them, x lateral,
+  y forward, m. UniAD's two x sign flips cancel, so x is used as passed in;
+  ``ego_to_uniad`` maps a project ego-frame trajectory into it (x right = -y left).
+
+Raster collision conventions (``raster_collisions(..., convention=)``), each
+reading an occupancy grid in its own layout:
+
+* ``"uniad"``: box row = trunc(y / 0.5 + r) (forward = increasing row), point
+  row = trunc((y + 49.75) / 0.5);
+* ``"vad"`` (VAD ``metric_stp3.PlanningMetric``): box row = trunc(200 -
+  (y / 0.5 + r)) (forward = decreasing row, VAD's image frame), col as UniAD;
+  point cell row = trunc((24.875 - y) / 0.5), col = trunc((24.875 + x) / 0.5):
+  VAD halves the cell-centre offset, a ~25 m shift, so its ``obj_col`` is a
+  documented quirk, not a meaningful metric (use ``obj_box_col``).
 
 Conventions (METRICS.md §5):
 
@@ -32,6 +43,7 @@ Conventions (METRICS.md §5):
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -58,6 +70,9 @@ BEV_BX = -49.75
 UNIAD_EGO_LENGTH = 4.084
 UNIAD_EGO_WIDTH = 1.85
 UNIAD_EGO_OFFSET = 0.5
+#: Raster collision conventions (``raster_collisions``).
+RASTER_CONVENTIONS = ("uniad", "vad")
+RasterConvention = Literal["uniad", "vad"]
 
 
 # --------------------------------------------------------------------------
@@ -269,45 +284,110 @@ def uniad_point_cells(traj: Array, res: float = BEV_RES, bx: float = BEV_BX,
     return jnp.clip(r, 0, size - 1), jnp.clip(c, 0, size - 1), inside
 
 
-def uniad_box_collisions(traj: Array, occupancy: Array) -> Array:
+def vad_box_cells(traj: Array, rows: np.ndarray = FOOTPRINT_ROWS, cols: np.ndarray = FOOTPRINT_COLS,
+                  res: float = BEV_RES, size: int = BEV_SIZE) -> tuple[Array, Array]:
+    """Grid cells under VAD's ego box at each trajectory point
+    (``metric_stp3.PlanningMetric.evaluate_single_coll``).
+
+    ``row = trunc(size - (y / res + r))`` (VAD's image rows: forward is up),
+    ``col = trunc(x / res + c)`` for every footprint cell (r, c) (the same 32
+    cells as UniAD), then CLIPPED to [0, size - 1]. Exact as VAD computes it
+    (float32 y / 0.5, then the integer shift in float64).
+
+    Args: traj (..., H, 2) UniAD / VAD coordinates (x lateral, y forward), m.
+    Returns (rows, cols), each (..., H, F) int32.
+    """
+    traj = jnp.asarray(traj, jnp.float32)
+    qy = (traj[..., 1] / res)[..., None]
+    qx = (traj[..., 0] / res)[..., None]
+    r = _trunc_shift(-qy, jnp.asarray(size - np.asarray(rows), jnp.float32))
+    c = _trunc_shift(qx, jnp.asarray(cols, jnp.float32))
+    return jnp.clip(r, 0, size - 1), jnp.clip(c, 0, size - 1)
+
+
+def vad_point_cells(traj: Array, res: float = BEV_RES, bx: float = BEV_BX,
+                    size: int = BEV_SIZE) -> tuple[Array, Array, Array]:
+    """VAD's obj_col cell under each trajectory point (``evaluate_coll``):
+    ``row = trunc((-bx / 2 - y) / res)``, ``col = trunc((-bx / 2 + x) / res)``
+    in float32 (as torch computes it). The halved offset (24.875 m instead of
+    49.75 m) puts the cell ~25 m off the point: a quirk kept for reproduction.
+
+    Args: traj (..., H, 2) UniAD / VAD coordinates, m.
+    Returns (rows, cols, inside), each (..., H); cells outside the grid have
+    ``inside`` False (VAD skips them), indices clipped for safe gathers.
+    """
+    traj = jnp.asarray(traj, jnp.float32)
+    half = jnp.float32(-bx / 2.0)
+    r = jnp.trunc((half - traj[..., 1]) / jnp.float32(res)).astype(jnp.int32)
+    c = jnp.trunc((half + traj[..., 0]) / jnp.float32(res)).astype(jnp.int32)
+    inside = (r >= 0) & (r < size) & (c >= 0) & (c < size)
+    return jnp.clip(r, 0, size - 1), jnp.clip(c, 0, size - 1), inside
+
+
+def _raster_cells(convention: str):
+    """(box-cell function, point-cell function) of a raster convention."""
+    if convention == "uniad":
+        return uniad_box_cells, uniad_point_cells
+    if convention == "vad":
+        return vad_box_cells, vad_point_cells
+    raise DriveE2EError(f"open-loop raster convention must be one of {RASTER_CONVENTIONS}, got {convention!r}")
+
+
+def raster_box_collisions(traj: Array, occupancy: Array, convention: RasterConvention = "uniad") -> Array:
     """obj_box_col facts: any occupied cell under the ego box footprint.
 
     Args:
-      traj: (H, 2) UniAD coordinates, m.
-      occupancy: (H, 200, 200) bool/0-1 occupancy of future step t.
+      traj: (H, 2) UniAD / VAD coordinates, m.
+      occupancy: (H, 200, 200) bool/0-1 occupancy of future step t, in the
+        convention's raster layout.
+      convention: "uniad" or "vad" (module docstring).
 
     Returns (H,) bool.
     """
     occupancy = jnp.asarray(occupancy)
-    r, c = uniad_box_cells(traj)
+    r, c = _raster_cells(convention)[0](traj)
     t = jnp.arange(r.shape[0])[:, None]
     return jnp.any(occupancy[t, r, c] > 0, axis=-1)
 
 
-def uniad_point_collisions(traj: Array, occupancy: Array) -> Array:
+def raster_point_collisions(traj: Array, occupancy: Array, convention: RasterConvention = "uniad") -> Array:
     """obj_col facts: the one cell under the trajectory point is occupied
     (points outside the grid never collide).
 
-    Args: traj (H, 2) UniAD coordinates, m; occupancy (H, 200, 200).
+    Args: traj (H, 2) m; occupancy (H, 200, 200); convention "uniad" / "vad".
     Returns (H,) bool.
     """
     occupancy = jnp.asarray(occupancy)
-    r, c, inside = uniad_point_cells(traj)
+    r, c, inside = _raster_cells(convention)[1](traj)
     t = jnp.arange(r.shape[0])
     return inside & (occupancy[t, r, c] > 0)
 
 
-def uniad_collisions(pred: Array, gt: Array, occupancy: Array) -> dict[str, Array]:
-    """UniAD's per-sample collision facts with the GT exclusion applied.
+def uniad_box_collisions(traj: Array, occupancy: Array) -> Array:
+    """``raster_box_collisions`` with UniAD's raster."""
+    return raster_box_collisions(traj, occupancy, "uniad")
+
+
+def uniad_point_collisions(traj: Array, occupancy: Array) -> Array:
+    """``raster_point_collisions`` with UniAD's raster."""
+    return raster_point_collisions(traj, occupancy, "uniad")
+
+
+def raster_collisions(pred: Array, gt: Array, occupancy: Array,
+                      convention: RasterConvention = "uniad") -> dict[str, Array]:
+    """UniAD's / VAD's per-sample collision facts with the GT exclusion applied.
 
     Args:
-      pred, gt: (..., H, 2) UniAD coordinates, m.
-      occupancy: (..., H, 200, 200) GT occupancy per future step.
+      pred, gt: (..., H, 2) UniAD / VAD coordinates, m.
+      occupancy: (..., H, 200, 200) GT occupancy per future step, in the
+        convention's raster layout.
+      convention: "uniad" or "vad" (VAD's ``obj_col`` has the ~25 m quirk).
 
     Returns dict ``obj_col``, ``obj_box_col`` (..., H) bool: the prediction
     collides at that step AND the GT trajectory's box does not (a step where
     the GT box collides adds 0).
     """
+    _raster_cells(convention)
     pred = jnp.asarray(pred, jnp.float32)
     gt = jnp.asarray(gt, jnp.float32)
     occupancy = jnp.asarray(occupancy)
@@ -316,28 +396,39 @@ def uniad_collisions(pred: Array, gt: Array, occupancy: Array) -> dict[str, Arra
     p = pred.reshape((-1, h, 2))
     g = jnp.broadcast_to(gt, pred.shape).reshape((-1, h, 2))
     occ = jnp.broadcast_to(occupancy, lead + occupancy.shape[-3:]).reshape((-1,) + occupancy.shape[-3:])
-    gt_box = jax.vmap(uniad_box_collisions)(g, occ)
-    box = jax.vmap(uniad_box_collisions)(p, occ)
-    point = jax.vmap(uniad_point_collisions)(p, occ)
+    box_fn = jax.vmap(lambda t, o: raster_box_collisions(t, o, convention))
+    gt_box = box_fn(g, occ)
+    box = box_fn(p, occ)
+    point = jax.vmap(lambda t, o: raster_point_collisions(t, o, convention))(p, occ)
     return {
         "obj_col": (point & ~gt_box).reshape(lead + (h,)),
         "obj_box_col": (box & ~gt_box).reshape(lead + (h,)),
     }
 
 
-def uniad_collision_rates(pred: Array, gt: Array, occupancy: Array, sample_valid: Array | None = None,
-                          seconds=SECONDS, step_s: float = STEP_S) -> dict[str, dict[str, Array]]:
-    """UniAD's ``PlanningMetric`` collision rates over N samples.
+def uniad_collisions(pred: Array, gt: Array, occupancy: Array) -> dict[str, Array]:
+    """``raster_collisions`` with UniAD's raster."""
+    return raster_collisions(pred, gt, occupancy, "uniad")
+
+
+def raster_collision_rates(pred: Array, gt: Array, occupancy: Array, sample_valid: Array | None = None,
+                           seconds=SECONDS, step_s: float = STEP_S,
+                           convention: RasterConvention = "uniad") -> dict[str, dict[str, Array]]:
+    """``PlanningMetric`` collision rates over N samples (UniAD's or VAD's raster).
 
     Args:
-      pred, gt: (..., N, H, 2) UniAD coordinates, m.
-      occupancy: (..., N, H, 200, 200) GT occupancy.
-      sample_valid: (..., N) bool or None (all samples count).
+      pred, gt: (..., N, H, 2) UniAD / VAD coordinates, m.
+      occupancy: (..., N, H, 200, 200) GT occupancy (the convention's layout).
+      sample_valid: (..., N) bool or None (all samples count); VAD: its
+        ``fut_valid_flag``.
+      convention: "uniad" or "vad".
 
     Returns {"obj_col", "obj_box_col"} -> {"per_step" (..., H), "uniad"
-    (..., 3), "stp3" (..., 3)}: per-step counts / number of samples.
+    (..., 3), "stp3" (..., 3)}: per-step counts / number of samples. VAD
+    reports "stp3" (its per-sample mean over steps 1..2k, averaged over the
+    samples, is the same number).
     """
-    facts = uniad_collisions(pred, gt, occupancy)
+    facts = raster_collisions(pred, gt, occupancy, convention)
     out = {}
     for name, f in facts.items():
         per_step = sample_mean(f, sample_valid)
@@ -347,6 +438,12 @@ def uniad_collision_rates(pred: Array, gt: Array, occupancy: Array, sample_valid
             "stp3": stp3_convention(per_step, seconds, step_s),
         }
     return out
+
+
+def uniad_collision_rates(pred: Array, gt: Array, occupancy: Array, sample_valid: Array | None = None,
+                          seconds=SECONDS, step_s: float = STEP_S) -> dict[str, dict[str, Array]]:
+    """UniAD's ``PlanningMetric`` collision rates (``raster_collision_rates``, UniAD raster)."""
+    return raster_collision_rates(pred, gt, occupancy, sample_valid, seconds, step_s, "uniad")
 
 
 # --------------------------------------------------------------------------

@@ -29,7 +29,7 @@ from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS
 
 REPO = Path(__file__).resolve().parents[2]
 B2D = REPO / "tests" / "data" / "third_party" / "bench2drive"
-TINY = REPO / "scenarios" / "examples" / "tiny"
+TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 RUN_INFO = {"suite": "toy", "suite_version": "1", "split": "val", "num_scenarios": 4, "preset": "b2d", "dt": 0.1}
 COUNT_KEYS = ("collisions_pedestrian", "collisions_vehicle", "collisions_layout", "red_light", "outside_route_lanes",
               "min_speed_infractions", "route_dev", "vehicle_blocked", "route_timeout")
@@ -232,7 +232,7 @@ def _b2d_abilities(records, monkeypatch) -> dict:
         ok = rec["status"] in ["Completed", "Perfect"] and not ab.get_infraction_status(rec)
         ab.update_Ability(rec["scenario_name"], stat, ok)
         ab.update_Success(rec["scenario_name"], success, ok)
-    return {k: 100.0 * s / n for k, (s, n) in stat.items() if n}
+    return {k: s / n for k, (s, n) in stat.items() if n}
 
 
 def _check_against_summary(data: dict, rows: list[dict], tmp_path: Path, monkeypatch) -> dict:

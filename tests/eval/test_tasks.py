@@ -104,7 +104,7 @@ def test_bench_with_a_task_writes_task_success_and_abilities(tiny_suite_dir, tmp
     assert sorted(r["repetition"] for r in rows) == [0, 1]
     assert all("task_success" in r and "route_speed_limit_kmh" in r for r in rows)
     o = summary["policies"]["log_replay"]["overall"]
-    assert "task_success_rate" in o and o["abilities"]["Traffic_Signs"] == o["success_rate"]
+    assert "task_success_rate" in o and 100 * o["abilities"]["Traffic_Signs"] == pytest.approx(o["success_rate"])
     assert any("task lane_following" in line for line in printed)
 
 
@@ -113,11 +113,9 @@ def test_ability_scores_pool_the_behaviour_groups_of_each_ability():
 
     rows = [{"behavior": b, "success": s} for b, s in
             (("COV", True), ("LFT", False), ("RT", True), ("IPC", True), ("STP", False), ("UT", True))]
-    ab = ability_scores(rows)
-    assert ab["Merging"] == pytest.approx(200 / 3)  # COV, LFT, RT
-    assert ab["Emergency_Brake"] == 100.0  # IPC, COV
-    assert ab["Give_Way"] == pytest.approx(200 / 3)  # IPC, LFT, UT
-    assert ab["Traffic_Signs"] == 0.0  # STP
-    assert "Overtaking" not in ab
-    assert ab["mean"] == pytest.approx((200 / 3 + 100 + 200 / 3 + 0) / 4)
+    ab = ability_scores(rows)  # fractions, B2D's ability table through the group -> scenario-type map
+    assert ab["Merging"] == 1.0 and ab["Emergency_Brake"] == 1.0  # COV; IPC
+    assert ab["Traffic_Signs"] == pytest.approx(4 / 6)  # every group, no junction data -> no credit
+    assert "Overtaking" not in ab and "Give_Way" not in ab
+    assert ab["mean"] == pytest.approx((1 + 1 + 4 / 6) / 3)
     assert ability_scores([{"behavior": "XXX", "success": True}]) == {}

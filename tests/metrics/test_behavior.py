@@ -16,6 +16,9 @@ from hypothesis import strategies as st
 
 from drivee2e_jax.metrics.behavior import (
     bm_code_metrics,
+    bm_collision_class,
+    bm_driving_score,
+    bm_route_completion,
     distinct_events,
     episode_behavior,
     front_distance_buckets,
@@ -297,3 +300,38 @@ def test_properties_signed_jerk_and_time_shares(speeds, fronts):
     assert got["longitudinal_jerk_mps"] == pytest.approx((speeds[-1] - speeds[0]) / (n - 1), abs=1e-9)
     share = sum(got[f"front_time_pct_{k}"] for k in ("great", "medium", "short", "dangerous"))
     assert share == pytest.approx(100.0 * np.mean(np.array(fronts[:n]) < 50))
+
+
+# ---------------------------------------------------------------------------
+# Route completion and driving score (controller_carla.py)
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("eff_m", "length_m", "actor_types", "red", "code", "want_rc", "want_ds"), [
+    # BM-01's effective distance (40.5 m) on a 100 m route; its two collisions a car and a pedestrian.
+    (40.5, 100.0, ("vehicle.tesla.model3", "walker.pedestrian.0001"), 1, 3, 0.405, 0.059534999999999984),
+    # A bicycle is a vehicle; static.* and traffic.* are "static"; termination 2 = wrong turn.
+    (40.5, 100.0, ("vehicle.bh.crossbike", "static.prop.streetbarrier", "traffic.traffic_light"), 0, 2,
+     0.405, 0.07186725000000001),
+    # Success (code 1): no time-out factor; RC is not clipped at 1.
+    (250.0, 200.0, (), 2, 1, 1.25, 0.6124999999999999),
+])
+def test_bm_route_completion_and_driving_score_match_controller_carla(eff_m, length_m, actor_types, red, code,
+                                                                      want_rc, want_ds):
+    """Expected values by EXECUTING JdeRobot/BehaviorMetrics@a4bfa13
+    ``utils/controller_carla.py`` ``ControllerCarla.stop_recording_metrics`` (ROS, CARLA and the
+    bag reading stubbed: ``metrics_carla.get_metrics`` returned the effective distance and the
+    collided actor ids, ``world.get_actor`` actors with the given ``type_id``). By hand, row 1:
+    0.405 * 0.6 * 0.5 * 0.7 (red) * 0.7 (time out) = 0.059535."""
+    rc = bm_route_completion(eff_m, length_m)
+    classes = [bm_collision_class(t) for t in actor_types]
+    ds = bm_driving_score(rc, collisions_vehicle=classes.count("vehicle"), collisions_static=classes.count("static"),
+                          collisions_walker=classes.count("walker"), red_lights=red, termination_code=code)
+    assert rc == pytest.approx(want_rc, rel=1e-12)
+    assert ds == pytest.approx(want_ds, rel=1e-12)
+
+
+def test_bm_driving_score_defaults_to_the_time_out_every_run_gets():
+    assert bm_driving_score(1.0) == pytest.approx(0.7)
+    assert bm_driving_score(1.0, termination_code=None) == 1.0
+    assert math.isnan(bm_route_completion(10.0, 0.0))

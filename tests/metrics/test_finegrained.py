@@ -127,3 +127,28 @@ def test_batch_columns_match_one_episode_at_a_time():
     assert rows[0]["efficiency_pct"] == pytest.approx(65.0)
     assert rows[1]["efficiency_pct"] == pytest.approx(40.0)  # > 1000 % ignored, as B2D
     assert math.isnan(rows[2]["efficiency_pct"])
+
+
+def test_bm_score_columns_count_collisions_by_class_and_red_lights():
+    """By hand: RC 60 % of 100 m -> effective 60 m -> BM RC 0.6; a vehicle and a pedestrian
+    collision and one red light, with the time-out factor: 0.6 * 0.6 * 0.5 * 0.7 * 0.7.
+    The "code" definition drops the pedestrian hit 0.5 m after the vehicle one (BM's 1 m rule)."""
+    from drivee2e_jax.metrics.finegrained import BM_SCORE_COLUMNS
+    from drivee2e_jax.types import CollisionClass
+
+    base = fake_log(collisions=(10, 40))
+    cls = np.full(60, -1)
+    cls[10], cls[40] = int(CollisionClass.VEHICLE), int(CollisionClass.PEDESTRIAN)
+    red = np.isin(np.arange(60), (20,))
+    log = base._replace(events=namedtuple("Ev", "collision collision_class red_light")(
+        base.events.collision, cls, red))
+    c = cols(log, bm_scores=True)
+    assert set(c) == set(COLUMNS) | set(BM_SCORE_COLUMNS)
+    assert c["bm_route_completion"] == pytest.approx(0.6)
+    assert c["bm_driving_score"] == pytest.approx(0.6 * 0.6 * 0.5 * 0.7 * 0.7)
+    only_car = log._replace(events=log.events._replace(collision=np.isin(np.arange(60), (10,))))
+    assert cols(only_car, bm_scores=True)["bm_driving_score"] == pytest.approx(0.6 * 0.6 * 0.7 * 0.7)
+    near = log._replace(xy=np.where(np.arange(60)[:, None] == 40, log.xy[10] + [0.5, 0.0], log.xy))
+    assert cols(near, bm_scores=True, definition="code")["bm_driving_score"] == pytest.approx(0.6 * 0.6 * 0.7 * 0.7)
+    assert cols(near, bm_scores=True)["bm_driving_score"] == pytest.approx(0.6 * 0.6 * 0.5 * 0.7 * 0.7)
+    assert "bm_driving_score" not in cols(base)  # opt-in: the default rows keep their columns

@@ -253,3 +253,69 @@ def test_box_collision_matches_shapely(px, py, ax, ay, ayaw, el, ew, al, aw, off
     got = _box_jit(jnp.asarray(p), jnp.array([el, ew], jnp.float32), jnp.array([ax, ay], jnp.float32),
                    jnp.float32(ayaw), jnp.array([al, aw], jnp.float32), off)
     assert bool(got) == want
+
+
+# ---------------------------------------------------------------------------
+# VAD's raster (metric_stp3.PlanningMetric): row flip and the point-cell quirk
+# ---------------------------------------------------------------------------
+
+
+def vad_case() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Three samples (pred, gt (3, 6, 2) in VAD's frame, x lateral / y forward; occupancy
+    (3, 6, 200, 200) in VAD's image layout, forward = up). A: an obstacle ahead (rows 66-72)
+    that the box reaches at y = 12.5 and 15, plus one cell (19, 49) hit by the point quirk at
+    y = 15; GT 5 m to the side. B: the same with GT = pred (every hit excluded). C: clipping
+    (y = +-60 onto rows 0 / 199), trunc at a box edge (y = 2.3: rows 91..98, so row 98 hits and
+    row 99 does not) and trunc toward zero of a point row ((24.875 - 25) / 0.5 = -0.25 -> row 0)."""
+    ys = np.array([2.5, 5.0, 7.5, 10.0, 12.5, 15.0], np.float32)
+    a = np.stack([np.zeros(6, np.float32), ys], -1)
+    c = np.stack([np.zeros(6, np.float32), np.array([60.0, -60.0, 2.3, 2.3, 25.0, 2.3], np.float32)], -1)
+    pred = np.stack([a, a, c])
+    gt = np.stack([a + [5.0, 0.0], a, c + [30.0, 0.0]]).astype(np.float32)
+    occ = np.zeros((3, 6, 200, 200), bool)
+    occ[:2, :, 66:73, 95:106] = True
+    occ[:2, 5, 19, 49] = True
+    occ[2, 0, 0, 95:106] = True
+    occ[2, 1, 199, 95:106] = True
+    occ[2, 2, 98, 95:106] = True
+    occ[2, 3, 99, 95:106] = True
+    occ[2, 4, 0, 49] = True
+    return pred, gt, occ
+
+
+#: VAD ``PlanningMetric.evaluate_coll`` on ``vad_case`` (obj_coll_sum, obj_box_coll_sum), EXECUTED.
+VAD_OBJ_COL_SUM = [0, 0, 0, 0, 1, 1]
+VAD_OBJ_BOX_COL_SUM = [1, 1, 1, 0, 1, 1]
+
+
+def test_vad_raster_collisions_match_vads_planning_metric():
+    """Expected sums by EXECUTING hustvl/VAD@1688c4b ``projects/mmdet3d_plugin/VAD/planner/metric_stp3.py``
+    ``PlanningMetric.evaluate_coll`` (torch, float32 inputs; ``skimage.draw.polygon`` replaced by the
+    cells strictly inside the axis-aligned footprint, rows 97..104 x cols 98..101 as METRICS.md §5;
+    cv2 / nuscenes / plotting stubbed). By hand: A's box hits at steps 5, 6 and its point cell
+    (trunc(19.75), trunc(49.75)) = (19, 49) at step 6; C's box hits at steps 1-3, its point at step 5.
+    VAD's per-sample ``obj_box_coll.mean()`` over steps 1..2k, averaged over the 3 samples, is the
+    ST-P3 value of the per-step rates."""
+    pred, gt, occ = vad_case()
+    rates = olm.raster_collision_rates(pred, gt, occ, convention="vad")
+    np.testing.assert_allclose(np.asarray(rates["obj_col"]["per_step"]), np.array(VAD_OBJ_COL_SUM) / 3, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(rates["obj_box_col"]["per_step"]), np.array(VAD_OBJ_BOX_COL_SUM) / 3,
+                               atol=1e-7)
+    per_sample = np.asarray(olm.raster_collisions(pred, gt, occ, "vad")["obj_box_col"], float)  # (3, 6)
+    vad_style = [per_sample[:, :n].mean(axis=1).mean() for n in (2, 4, 6)]
+    np.testing.assert_allclose(np.asarray(rates["obj_box_col"]["stp3"]), vad_style, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(rates["obj_box_col"]["stp3"]), [1 / 3, 0.25, 5 / 18], atol=1e-7)
+
+
+def test_vad_and_uniad_rasters_differ_by_the_row_flip():
+    rows_v, cols_v = olm.vad_box_cells(jnp.array([[0.0, 0.0], [0.0, 12.5]]))
+    rows_u, cols_u = olm.uniad_box_cells(jnp.array([[0.0, 0.0], [0.0, 12.5]]))
+    assert (int(rows_v[0].min()), int(rows_v[0].max())) == (96, 103)  # trunc(200 - r), r = 97..104
+    assert (int(rows_v[1].min()), int(rows_v[1].max())) == (71, 78)
+    assert (int(rows_u[1].min()), int(rows_u[1].max())) == (122, 129)
+    np.testing.assert_array_equal(np.asarray(cols_v), np.asarray(cols_u))
+    r, c, inside = olm.vad_point_cells(jnp.array([[0.0, 0.0], [0.0, 60.0]]))
+    assert (int(r[0]), int(c[0]), bool(inside[0])) == (49, 49, True)  # the ~25 m offset: not the centre 99/100
+    assert not bool(inside[1])
+    with pytest.raises(DriveE2EError, match="convention"):
+        olm.raster_collisions(jnp.zeros((6, 2)), jnp.zeros((6, 2)), jnp.zeros((6, 200, 200)), "stp3")
