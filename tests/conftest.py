@@ -58,7 +58,7 @@ def drivee2e_cache(tmp_path, monkeypatch):
 # of tests shares the one session-scoped run.
 # --------------------------------------------------------------------------
 
-_TINY_EXAMPLE = Path(__file__).resolve().parents[1] / "scenarios" / "examples" / "tiny"
+_TINY_EXAMPLE = Path(__file__).resolve().parents[1] / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 
 
 @pytest.fixture(scope="session")

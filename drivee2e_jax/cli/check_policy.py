@@ -15,8 +15,8 @@ examples:
 FILE defines `policy` or `make_policy(**kwargs)` (FILE:key=value,... passes
 make_policy arguments, JSON values): a JAX policy (drivee2e_jax.policy.Policy)
 or a host policy (drivee2e_jax.hostapi.HostPolicy). The policy runs on the
-first --batch scenarios of --suite (default: the 4-scenario example suite
-scenarios/examples/tiny), at --steps instants along their logs. Checked: the
+first --batch scenarios of --suite (default: tiny, the 4-scenario example
+suite shipped in the package), at --steps instants along their logs. Checked: the
 declared attributes (name, action_type, waypoint_dt, num_waypoints,
 required_sensors); the action's type, shapes and dtypes (float32); a stable
 policy state; finite actions; the same action for the same inputs and key;
@@ -38,7 +38,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("policies", nargs="+", metavar="FILE",
                    help="policy file (.py) or reference policy name, optionally FILE:key=value,...")
     p.add_argument("--suite", default="tiny",
-                   help="tiny (scenarios/examples/tiny), twin15, or a suite folder (default: tiny)")
+                   help="tiny (the 4-scenario example suite shipped in the package), twin15, or a suite folder "
+                        "(default: tiny)")
     p.add_argument("--batch", type=int, default=4, metavar="N", help="scenarios to observe (default: 4)")
     p.add_argument("--steps", type=int, default=3, metavar="N", help="observations per scenario (default: 3)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the policy's keys (default: 0)")

@@ -8,10 +8,10 @@ from drivee2e_jax.cli.common import add_command
 
 EPILOG = """\
 examples:
-  drivee2e finetune --init runs/vector_transformer --split train --out runs/finetune/vt
-  drivee2e finetune --init runs/vector_transformer --out runs/finetune/vt --resume
-  drivee2e finetune --init runs/ad_mlp --out runs/finetune/ad_mlp --steps 200 --horizon 20 --batch 8 --weights red_light=5
-  drivee2e bench --split val --policy vector_transformer:checkpoint=runs/finetune/vt,name=vt_ft
+  drivee2e finetune --init runs/ad_mlp --split train --out runs/finetune/ad_mlp
+  drivee2e finetune --init runs/ad_mlp --out runs/finetune/ad_mlp --resume
+  drivee2e finetune --init runs/ad_mlp --out runs/finetune/ad_mlp_rl --steps 200 --horizon 20 --batch 8 --weights red_light=5
+  drivee2e bench --split val --policy ad_mlp:checkpoint=runs/finetune/ad_mlp,name=ad_mlp_ft
 
 Each step drives a pool of --batch episodes --horizon steps further with the
 current policy (on-policy states) and backpropagates the loss (soft collision,
@@ -19,7 +19,8 @@ route deviation, comfort, imitation relabelled at the on-policy states) through 
 rollout (docs/finetuning.md). Writes RUN/config.json, RUN/log.jsonl and an
 Orbax checkpoint every --ckpt-every steps in RUN/checkpoints/<step>
 (checkpoint 0 = the --init parameters). The run loads like a `drivee2e train`
-run: policies/<model>.py:checkpoint=RUN, `drivee2e trend RUN`.
+run: --policy <model>:checkpoint=RUN, `drivee2e trend RUN`. --init takes a
+`drivee2e train` run of ad_mlp or vector_transformer.
 """
 
 

@@ -15,8 +15,8 @@ SUITE_EPILOG = """\
 examples:
   drivee2e suite generate --out suites/twin15
   drivee2e suite info twin15
-  drivee2e suite info suites/twin15 --json
-  drivee2e suite validate suites/twin15
+  drivee2e suite info twin15 --json
+  drivee2e suite validate tiny     # a suite folder, or the name of an example suite shipped in the package
   drivee2e suite import argoverse2 data/av2/ --out suites/av2
 """
 
@@ -41,7 +41,7 @@ pip install 'drivee2e-jax[import]'. Check the result with
 
 GENERATE_EPILOG = """\
 example:
-  drivee2e suite generate --name twin15 --seed 0 --out suites/twin15
+  drivee2e suite generate --out suites/twin15      # --name twin15 --seed 0: the defaults
 
 The folder holds suite.json, maps/<map_id>.json and scenarios/<id>.json; the
 same name and seed always give the same bytes. An existing non-empty folder is
@@ -51,7 +51,7 @@ refused unless --force (which only ever replaces a suite folder).
 INFO_EPILOG = """\
 examples:
   drivee2e suite info twin15
-  drivee2e suite info suites/my_suite --json | python -m json.tool
+  drivee2e suite info tiny --json | python -m json.tool
 
 --json prints exactly one JSON object with at least: num_scenarios, splits,
 behaviors, intersections (a count), intersection_ids, categories (agent
@@ -60,7 +60,7 @@ category -> number of tracks), weathers, times_of_day, agents_per_scenario.
 
 VALIDATE_EPILOG = """\
 example:
-  drivee2e suite validate suites/my_suite
+  drivee2e suite validate tiny
 
 Prints every problem as `file: field: expected ...` and exits 1 if there is
 any. Then runs the curation checks of recorded scenarios (track gaps, speed /
@@ -108,7 +108,7 @@ def add_parser(subparsers) -> None:
                     "timestamps on the log grid. Lists all problems, not just the first.",
         epilog=VALIDATE_EPILOG,
     )
-    v.add_argument("folder", type=Path, help="suite folder")
+    v.add_argument("folder", type=Path, help="suite folder (or 'tiny', the example suite shipped in the package)")
     v.add_argument("--strict", action="store_true", help="curation findings are errors (exit 1)")
     v.add_argument("--no-curation", action="store_true", help="schema checks only")
     v.set_defaults(func=run_validate)
@@ -196,7 +196,10 @@ def run_info(args) -> int:
 
 def run_validate(args) -> int:
     from drivee2e_jax.scenario.schema import read_suite, validate_suite
+    from drivee2e_jax.scenario.suite import EXAMPLE_SUITES
 
+    if not args.folder.exists() and str(args.folder) in EXAMPLE_SUITES:
+        args.folder = EXAMPLE_SUITES[str(args.folder)]
     problems = validate_suite(args.folder, progress=True)
     if problems:
         for p in problems:

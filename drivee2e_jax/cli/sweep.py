@@ -10,7 +10,7 @@ EPILOG = """\
 examples:
   drivee2e sweep experiments/smoke.toml                 # tiny: 1 run, 2 policies x 2 repetitions
   drivee2e sweep experiments/baselines.toml --dry-run   # list the runs and whether each is complete
-  drivee2e sweep experiments/baselines.toml --out results/sweeps/b2 --no-progress
+  drivee2e sweep experiments/smoke.toml --out results/sweeps/smoke-2 --no-progress   # elsewhere, quietly
 
 A run is one suite x split x variant x task x [sim] combination, evaluated
 like `drivee2e bench` (all policies; the repetitions of a policy in one

@@ -16,8 +16,8 @@ examples:
 Writes RUN/config.json, RUN/log.jsonl (plot it with
 experiments/training/plot_log.py RUN) and an Orbax checkpoint per epoch in
 RUN/checkpoints/<epoch>. --resume continues from the last epoch (the config
-must be unchanged). Drive with a checkpoint: policies/<model>.py
-(make_policy(checkpoint=RUN)); study checkpoints with `drivee2e trend RUN`.
+must be unchanged). Drive with a checkpoint: `drivee2e bench --policy
+<model>:checkpoint=RUN`; study checkpoints with `drivee2e trend RUN`.
 """
 
 

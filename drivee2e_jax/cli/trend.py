@@ -9,7 +9,7 @@ from drivee2e_jax.cli.common import add_command
 EPILOG = """\
 examples:
   drivee2e trend runs/ad_mlp --split val --out results/trend-ad_mlp
-  drivee2e trend runs/ad_mlp --split val --limit 20 --out /tmp/trend-quick
+  drivee2e trend runs/ad_mlp --split val --limit 20 --out results/trend-quick
 
 For every checkpoint RUN/checkpoints/<epoch>: open-loop L2 at 1 s / 2 s
 (ST-P3 convention; *_uniad columns: the value at k s) and the open-loop

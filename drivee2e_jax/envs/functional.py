@@ -2,7 +2,7 @@
 
 Everything is pure and jittable; batch environments with ``jax.vmap``::
 
-    params = make_params("scenarios/examples/tiny", "train")
+    params = make_params("tiny", "train")
     env = AutoResetWrapper(DriveEnv())
     obs, state = env.reset(key, params)
     obs, state, reward, done, info = env.step(key, state, action, params)
@@ -268,7 +268,7 @@ class DriveEnv:
     """The functional environment: no state of its own; every method is pure
     (jit / vmap them; vmap with ``in_axes=(0, 0, 0, None)`` to share params)."""
 
-    def default_params(self, suite="scenarios/examples/tiny", split: str | None = "train", **kwargs) -> EnvParams:
+    def default_params(self, suite="tiny", split: str | None = "train", **kwargs) -> EnvParams:
         return make_params(suite, split, **kwargs)
 
     def scenario(self, state: EnvState, params: EnvParams) -> Scenario:

@@ -209,7 +209,7 @@ def inference_cost(model, obs, batch: int = 200, repeats: int = 20) -> dict:
             "cpu_us_per_sample": 1e6 * cpu / (repeats * batch)}
 
 
-def example_observation(sensor_config=None, suite: str = "scenarios/examples/tiny"):
+def example_observation(sensor_config=None, suite: str = "tiny"):
     """A ``HistoryObservation`` at the reset of ``suite``'s first scenario,
     with the sensors of ``sensor_config`` (host helper for measurements)."""
 

@@ -68,6 +68,11 @@ CACHE_FORMAT = 1
 #: ``generate(seed=...) -> SuiteRecord`` and ``VERSION``.
 BUILTIN_SUITES: dict[str, tuple[str, int]] = {"twin15": ("drivee2e_jax.scenario.twin15", 0)}
 
+#: Example suites shipped as folders inside the package, accepted by name
+#: (``drivee2e bench --suite tiny``): the four-scenario ``tiny`` suite, the
+#: on-disk format by example (docs/suite_format.md).
+EXAMPLE_SUITES: dict[str, Path] = {"tiny": Path(__file__).resolve().parent / "examples" / "tiny"}
+
 _GENERATED: dict[tuple[str, int], SuiteRecord] = {}
 
 
@@ -475,7 +480,7 @@ class Suite:
 
 
 def load_suite(name_or_path: str | os.PathLike | Suite, *, cache: bool = True) -> Suite:
-    """A suite by built-in name (``"twin15"``) or suite folder path.
+    """A suite by built-in name (``"twin15"``; ``"tiny"``, ``EXAMPLE_SUITES``) or suite folder path.
 
     Loading is lazy: records are generated/read and packed on first use, and
     later loads come from the packed cache. Raises DriveE2EError for an
@@ -486,7 +491,7 @@ def load_suite(name_or_path: str | os.PathLike | Suite, *, cache: bool = True) -
     text = os.fspath(name_or_path)
     if text in BUILTIN_SUITES:
         return Suite(_Builtin(text), cache=cache)
-    path = Path(text).expanduser()
+    path = EXAMPLE_SUITES.get(text) or Path(text).expanduser()
     if path.is_dir():
         return Suite(_Folder(path), cache=cache)
     if path.exists():

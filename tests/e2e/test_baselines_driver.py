@@ -218,7 +218,7 @@ def test_end_to_end_on_the_tiny_suite(tiny_run, tmp_path):
     shutil.copytree(tiny_run, runs / "ad_mlp")
     out = tmp_path / "out"
     argv = ["--out", str(out), "--runs", str(runs), "--models", "ad_mlp", "--epochs", "ad_mlp=2",
-            "--suite", str(REPO / "scenarios" / "examples" / "tiny"), "--eval-only"]
+            "--suite", str(REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"), "--eval-only"]
     assert run.main(argv) == 0
     with open(out / "table4.csv") as f:
         t4 = {r["policy"]: r for r in csv.DictReader(f)}

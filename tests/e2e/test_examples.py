@@ -15,7 +15,7 @@ from drivee2e_jax.scenario.schema import write_suite
 from tests.helpers.tiny_suite import build_tiny_suite
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLE = ROOT / "scenarios" / "examples" / "tiny"
+EXAMPLE = ROOT / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 
 
 def _same_tree(a: Path, b: Path) -> list[str]:
@@ -28,7 +28,7 @@ def _same_tree(a: Path, b: Path) -> list[str]:
 
 def test_example_suite_matches_the_test_fixture(tmp_path):
     fresh = write_suite(build_tiny_suite(), tmp_path / "tiny")
-    assert _same_tree(EXAMPLE, Path(fresh)) == [], "regenerate scenarios/examples/tiny from tests/helpers/tiny_suite.py"
+    assert _same_tree(EXAMPLE, Path(fresh)) == [], "regenerate drivee2e_jax/scenario/examples/tiny from tests/helpers/tiny_suite.py"
 
 
 def test_example_suite_validates(capsys):

@@ -23,7 +23,7 @@ from drivee2e_jax.policy import load_policy, resolve_policy_path
 from drivee2e_jax.scenario import load_suite
 from drivee2e_jax.types import Controls, Waypoints
 
-TINY = Path(__file__).resolve().parents[2] / "scenarios" / "examples" / "tiny"
+TINY = Path(__file__).resolve().parents[2] / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 STEPS = 1000
 NUM_ENVS = 4
 LOG_REPLAY = np.array([False, False, True, True])

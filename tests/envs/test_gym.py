@@ -14,7 +14,7 @@ from gymnasium.vector import AutoresetMode
 from drivee2e_jax.envs.gym import ENV_ID, DriveE2EEnv, DriveE2EVectorEnv
 from drivee2e_jax.metrics.driving_score import STATUS_NAMES
 
-TINY = str(Path(__file__).resolve().parents[2] / "scenarios" / "examples" / "tiny")
+TINY = str(Path(__file__).resolve().parents[2] / "drivee2e_jax" / "scenario" / "examples" / "tiny")
 EPISODE_STEPS = 49  # the tiny suite's 5 s logs at dt = 0.1 s
 
 

@@ -156,7 +156,7 @@ class BevCount(StatelessPolicy):
 def test_a_bev_policy_is_scored_open_loop_with_its_sensors_rendered():
     from drivee2e_jax.scenario import load_suite
 
-    suite = load_suite(POLICIES.parent / "scenarios" / "examples" / "tiny")
+    suite = load_suite(POLICIES.parents[1] / "drivee2e_jax" / "scenario" / "examples" / "tiny")
     packed = suite.pack("train")
     with pytest.raises(DriveE2EError, match="maps"):
         evaluate_openloop(BevCount(), packed, limit=1)

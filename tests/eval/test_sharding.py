@@ -54,7 +54,7 @@ print(json.dumps(out))
 def test_sharded_evaluate_matches_single_device():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
     proc = subprocess.run(
-        [sys.executable, "-c", SCRIPT, str(ROOT / "scenarios" / "examples" / "tiny"), str(ROOT / "drivee2e_jax" / "zoo")],
+        [sys.executable, "-c", SCRIPT, str(ROOT / "drivee2e_jax" / "scenario" / "examples" / "tiny"), str(ROOT / "drivee2e_jax" / "zoo")],
         capture_output=True, text=True, env=env, timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]

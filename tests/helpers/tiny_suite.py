@@ -2,7 +2,7 @@
 
 ``build_tiny_suite()`` returns a fresh ``SuiteRecord``: maps ``m_cross`` and
 ``m_tee``; scenarios ``s_straight`` / ``s_left`` (train), ``s_val`` (val),
-``s_test`` (test). ``scenarios/examples/tiny`` is this suite written out
+``s_test`` (test). ``drivee2e_jax/scenario/examples/tiny`` is this suite written out
 (``tests/e2e/test_examples.py`` checks it stays so).
 """
 

@@ -19,7 +19,7 @@ from tests.helpers.training import first, fit
 
 REPO = Path(__file__).resolve().parents[2]
 POLICIES = REPO / "drivee2e_jax" / "zoo"
-TINY = REPO / "scenarios" / "examples" / "tiny"
+TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 #: Small and fast: a 32 x 32 BEV at 2 m/px (the default extent) and a slim net.
 CONFIG = dict(bev_size=32, bev_resolution=2.0, conv_features=(8, 16, 16, 16), hidden=64, gru_hidden=32)
 

@@ -18,7 +18,7 @@ from drivee2e_jax.models import vector_transformer as vt
 from drivee2e_jax.scenario import load_suite
 
 REPO = Path(__file__).resolve().parents[2]
-TINY = REPO / "scenarios" / "examples" / "tiny"
+TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 CONFIG = dict(dim=32, heads=4, layers=2)
 
 

@@ -18,7 +18,7 @@ from drivee2e_jax.sweep import expand, load_config, parse_config, run_sweep
 from drivee2e_jax.sweep.config import SweepConfig, with_out
 
 ROOT = Path(__file__).resolve().parents[2]
-TINY = ROOT / "scenarios" / "examples" / "tiny"
+TINY = ROOT / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 
 #: A stochastic policy: its throttle comes from the step's PRNG key, so the
 #: repetitions (seeds) differ and a wrong key assignment shows.

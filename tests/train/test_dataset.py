@@ -10,7 +10,7 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.models import base
 from drivee2e_jax.train.dataset import DemoDataset, flatten, unflatten
 
-TINY = Path(__file__).resolve().parents[2] / "scenarios" / "examples" / "tiny"
+TINY = Path(__file__).resolve().parents[2] / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 
 
 def test_manifest_and_shards(tiny_demos):

@@ -24,7 +24,7 @@ from drivee2e_jax.train import finetune as ft
 from drivee2e_jax.types import EgoState
 
 REPO = Path(__file__).resolve().parents[2]
-TINY = REPO / "scenarios" / "examples" / "tiny"
+TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 CTL = ctl.ControllerParams()
 H = 8  # BPTT horizon of the tests
 

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from drivee2e_jax.train.trend import COLUMNS, run_trend
 
-TINY = Path(__file__).resolve().parents[2] / "scenarios" / "examples" / "tiny"
+TINY = Path(__file__).resolve().parents[2] / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 
 
 def test_trend_writes_csv_and_plot(tiny_run, tmp_path):
