@@ -3,7 +3,8 @@
 # virtual environment with every direct dependency at its LOWEST allowed
 # version (pyproject.toml's lower bounds, resolved by uv), and from a folder
 # outside the checkout run the README's main job (`drivee2e bench`, twin15 val,
-# the default policies, 5 scenarios) and `drivee2e dataset build` (2 scenarios).
+# the default policies, 5 scenarios), `drivee2e dataset build` (2 scenarios) and
+# `drivee2e check-policy stop` (on the example suite `tiny` inside the package).
 # Fails if a command fails or its tables / summary line are missing.
 #
 # WHEEL_CHECK_RESOLUTION=highest checks the newest allowed versions instead;
@@ -89,5 +90,9 @@ step "drivee2e dataset build --limit 2"
   || fail "drivee2e dataset build exited non-zero"
 grep -q "2 scenarios" "$work/dataset.log" || fail "drivee2e dataset build printed no summary line"
 [ -f "$work/demos/manifest.json" ] || fail "drivee2e dataset build wrote no manifest.json"
+
+step "drivee2e check-policy stop (on the example suite shipped in the package)"
+"$drivee2e" check-policy stop | tee "$work/check.log" || fail "drivee2e check-policy exited non-zero"
+grep -q "^ok: " "$work/check.log" || fail "drivee2e check-policy printed no 'ok:' line"
 
 step "ok ($resolution)"

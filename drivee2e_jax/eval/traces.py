@@ -65,7 +65,7 @@ from drivee2e_jax.observe.palette import bev_rgb
 from drivee2e_jax.observe.png import png_bytes
 from drivee2e_jax.observe.sensor_api import SensorContext, SensorFrames
 from drivee2e_jax.observe.sensors import SensorConfig
-from drivee2e_jax.policy import load_policy
+from drivee2e_jax.policy import load_policy, resolve_policy_path
 from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Waypoints, to_numpy
@@ -337,9 +337,27 @@ def _load_run_policy(run: RunRecord):
     if not path:
         raise DriveE2EError(f"{run.path}/policies: {run.policy}'s file has no policy_path")
     if not Path(path).is_file():
+        path = _portable_policy_path(run) or path
+    if not Path(path).is_file():
         raise DriveE2EError(f"{path}: the policy file of {run.policy!r} recorded in {run.path} is missing "
                             "(trace from the folder the bench ran in)")
     return load_policy(path, **(run.data.get("policy_kwargs") or {}))
+
+
+def _portable_policy_path(run: RunRecord) -> str | None:
+    """The policy file from the policy file's ``provenance.policy`` (written by
+    ``eval.results.stored_path``): a zoo name, or a path relative to the
+    results folder (a moved folder, another installation); None if neither."""
+    stored = (run.data.get("provenance") or {}).get("policy")
+    if not stored:
+        return None
+    inside = Path(run.path) / stored
+    if inside.is_file():
+        return str(inside)
+    try:
+        return str(resolve_policy_path(stored))
+    except DriveE2EError:
+        return None
 
 
 def _run_packed(run: RunRecord):

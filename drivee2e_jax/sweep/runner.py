@@ -29,7 +29,7 @@ from drivee2e_jax.eval.bench import BenchConfig, run_bench
 from drivee2e_jax.eval.report import load_rows
 from drivee2e_jax.eval.results import rows_to_csv
 from drivee2e_jax.eval.summary import summary_of
-from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.files import LOCK_NAME, FolderLocked, atomic_write_json, atomic_write_text, lock_folder
 from drivee2e_jax.policy import resolve_policy_path
 from drivee2e_jax.progress import progress as progress_bar
 from drivee2e_jax.sweep.config import SimSection, SweepConfig, out_dir
@@ -133,6 +133,16 @@ def run_sweep(cfg: SweepConfig, *, force: bool = False, progress: bool = True,
     out = out_dir(cfg)
     runs = expand(cfg)
     policy_paths(cfg)  # fail before anything is written
+    try:
+        with lock_folder(out, hint="wait for it to finish or use another --out"):  # one sweep per folder
+            return _run_locked(out, cfg, runs, force, progress, print_fn)
+    except FolderLocked as e:
+        raise DriveE2EError(str(e)) from None
+
+
+def _run_locked(out: Path, cfg: SweepConfig, runs: list[Run], force: bool, progress: bool,
+                print_fn: Callable[[str], None]) -> list[dict]:
+    """``run_sweep`` while holding the folder's lock."""
     start(out, cfg, runs, force)
     bar = progress_bar(total=len(runs), desc="sweep", unit="run", disable=None if progress else True, position=0)
     say = bar.write if progress else print_fn
@@ -174,12 +184,12 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
             diff = _diff(old.get("config") or {}, record["config"])
             raise DriveE2EError(f"{out}: holds a sweep with another config (differs in {diff}); "
                                 "use --force to start over or --out for another folder")
-    elif out.exists() and any(out.iterdir()) and not meta.exists() and not force:
+    elif out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()) and not meta.exists() and not force:
         raise DriveE2EError(f"{out}: exists and is not a sweep folder; use --force or another --out")
     if force:
         for r in runs:
             (out / "runs" / r.run_id / DONE_FILE).unlink(missing_ok=True)
-    # atomic_write's temp files of a killed process (one sweep per folder at a time).
+    # atomic_write's temp files of a killed process (safe: this sweep holds the folder's lock).
     for tmp in out.rglob(".*.tmp") if out.exists() else ():
         tmp.unlink()
     atomic_write_json(meta, record)

@@ -23,7 +23,7 @@ from drivee2e_jax.eval.leaderboard import (
     route_results,
     write_leaderboard_results,
 )
-from drivee2e_jax.eval.summary import ABILITIES, summary_of
+from drivee2e_jax.eval.summary import ABILITIES, ability_scores, summary_of
 from drivee2e_jax.metrics.aggregate import b2d_efficiency, b2d_merge, lb_global
 from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS
 
@@ -248,9 +248,14 @@ def _check_against_summary(data: dict, rows: list[dict], tmp_path: Path, monkeyp
     assert merged["success rate"] * 220 / n * 100 == pytest.approx(ours["success_rate"], abs=1e-9)
     ref = b2d_merge(route_results(data), planned_routes=220)
     assert merged["driving score"] == ref["driving score"] and merged["success rate"] == ref["success rate"]
-    # Multi-ability SR: B2D's success test and counting give our table.
-    assert _b2d_abilities(data["_checkpoint"]["records"], monkeypatch) == pytest.approx(
-        {k: v for k, v in ours["abilities"].items() if k != "mean"})
+    # Multi-ability SR: B2D's success test and counting give our table. The
+    # tool's Traffic_Signs junction credit needs CARLA's route planner, so it
+    # is compared without it here (with it: tests/metrics/test_abilities.py,
+    # the vendored tool on the same records); the credit only adds successes.
+    no_credit = [{k: v for k, v in r.items() if k not in ("route_junction_index", "route_waypoints")} for r in rows]
+    plain = {k: v for k, v in ability_scores(no_credit).items() if k != "mean"}
+    assert _b2d_abilities(data["_checkpoint"]["records"], monkeypatch) == pytest.approx(plain)
+    assert all(ours["abilities"][k] >= v for k, v in plain.items())
     # The global record is our summary's LB 2.0 numbers.
     g = data["_checkpoint"]["global_record"]
     assert g["scores_std_dev"]["score_composed"] == pytest.approx(ours["driving_score_std"], abs=1e-3)

@@ -104,7 +104,9 @@ def test_bench_with_a_task_writes_task_success_and_abilities(tiny_suite_dir, tmp
     assert sorted(r["repetition"] for r in rows) == [0, 1]
     assert all("task_success" in r and "route_speed_limit_kmh" in r for r in rows)
     o = summary["policies"]["log_replay"]["overall"]
-    assert "task_success_rate" in o and 100 * o["abilities"]["Traffic_Signs"] == pytest.approx(o["success_rate"])
+    # Traffic_Signs = SR plus B2D 0.0.4's junction credit (failed routes that got past their junction).
+    assert "task_success_rate" in o and o["abilities_junction_credit"]
+    assert 100 * o["abilities"]["Traffic_Signs"] >= o["success_rate"]
     assert any("task lane_following" in line for line in printed)
 
 

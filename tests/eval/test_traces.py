@@ -229,3 +229,25 @@ def test_strided_sensor_frames_are_the_full_frames_at_those_instants(run_dir):
 def test_run_policies_and_scenarios(run_dir):
     assert episodes.run_policies(run_dir) == [POLICY]
     assert episodes.run_scenarios(run_dir, POLICY) == ["s_straight", "s_left"]
+
+
+def test_a_moved_folder_finds_its_policy_by_the_recorded_portable_path(tmp_path):
+    """policy_path is where the bench found the file; when that is gone (the
+    folder moved, another installation) provenance.policy is used: a zoo name,
+    or a path relative to the results folder."""
+    from drivee2e_jax.eval.runspec import RunSpec
+
+    spec = RunSpec(num_scenarios=1)
+    zoo = episodes.RunRecord(path=tmp_path, info={}, policy="cv", spec=spec,
+                             data={"policy_path": "/gone/constant_velocity.py",
+                                   "provenance": {"policy": "constant_velocity"}})
+    assert episodes._load_run_policy(zoo).name == "constant_velocity"
+    (tmp_path / "mine.py").write_text("from drivee2e_jax.policy import load_policy, resolve_policy_path\n"
+                                      "policy = load_policy(resolve_policy_path('stop'))\n")
+    inside = episodes.RunRecord(path=tmp_path, info={}, policy="mine", spec=spec,
+                                data={"policy_path": "/gone/mine.py", "provenance": {"policy": "mine.py"}})
+    assert episodes._load_run_policy(inside).name == "stop"
+    lost = episodes.RunRecord(path=tmp_path, info={}, policy="x", spec=spec,
+                              data={"policy_path": "/gone/x.py", "provenance": {"policy": "/gone/x.py"}})
+    with pytest.raises(DriveE2EError, match="/gone/x.py: the policy file of 'x'"):
+        episodes._load_run_policy(lost)

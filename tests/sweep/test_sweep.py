@@ -233,3 +233,16 @@ def test_sweep_notebook_runs(tiny_config, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "tiny-train" in proc.stdout and "2 run x policy rows" in proc.stdout
     assert "## driving_score" in proc.stdout and "| tiny-train |" in proc.stdout
+
+
+def test_a_second_sweep_on_a_locked_folder_is_refused_in_one_line(tiny_config, tmp_path):
+    """Two sweeps on one folder would delete each other's temp files and
+    interleave the combined tables: the second gets one line naming the holder
+    and nothing of the folder changes."""
+    from drivee2e_jax.files import lock_folder
+
+    out = tmp_path / "locked"
+    with lock_folder(out, command="drivee2e sweep first"):
+        with pytest.raises(DriveE2EError, match=r"locked: in use by another run .*drivee2e sweep first.*--out"):
+            run_sweep(with_out(load_config(tiny_config), out), progress=False, print_fn=lambda s: None)
+    assert sorted(p.name for p in out.iterdir()) == [".lock"]
