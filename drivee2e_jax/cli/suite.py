@@ -98,7 +98,7 @@ def add_parser(subparsers) -> None:
                     "of day, and agent tracks by category.",
         epilog=INFO_EPILOG,
     )
-    i.add_argument("suite", help="built-in suite name (twin15) or suite folder")
+    i.add_argument("suite", help="built-in suite name (twin15, or tiny: the example shipped in the package) or suite folder")
     i.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
     i.set_defaults(func=run_info)
 

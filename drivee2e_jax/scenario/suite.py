@@ -499,5 +499,5 @@ def load_suite(name_or_path: str | os.PathLike | Suite, *, cache: bool = True) -
                             f"name ({', '.join(BUILTIN_SUITES)})")
     if os.sep in text or text.startswith((".", "~")):
         raise DriveE2EError(f"suite folder {text} does not exist; expected a folder with suite.json, maps/, scenarios/")
-    raise DriveE2EError(f"unknown suite {text!r}; expected a built-in suite name ({', '.join(BUILTIN_SUITES)}) "
+    raise DriveE2EError(f"unknown suite {text!r}; expected a built-in suite name ({', '.join([*BUILTIN_SUITES, *EXAMPLE_SUITES])}) "
                         "or the path of a suite folder")

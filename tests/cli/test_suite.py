@@ -149,6 +149,6 @@ def test_subprocess_one_line_error_without_traceback(tmp_path):
     assert proc.returncode == 2
     assert proc.stdout == ""
     assert proc.stderr.strip().splitlines() == [
-        "drivee2e: error: unknown suite 'no_such_suite'; expected a built-in suite name (twin15) "
+        "drivee2e: error: unknown suite 'no_such_suite'; expected a built-in suite name (twin15, tiny) "
         "or the path of a suite folder"
     ]

@@ -98,7 +98,7 @@ def test_unknown_and_empty_splits(tiny_suite, tmp_path, drivee2e_cache):
 
 
 def test_bad_names_and_paths(tmp_path):
-    with pytest.raises(DriveE2EError, match=r"unknown suite 'twin16'; expected a built-in suite name \(twin15\)"):
+    with pytest.raises(DriveE2EError, match=r"unknown suite 'twin16'; expected a built-in suite name \(twin15, tiny\)"):
         load_suite("twin16")
     with pytest.raises(DriveE2EError, match="does not exist"):
         load_suite(tmp_path / "missing")
