@@ -10,6 +10,16 @@ as ``drivee2e: error: <message>`` with exit code 2 and no traceback (unless
 from __future__ import annotations
 
 
+def one_line(text: object, limit: int | None = None) -> str:
+    """``str(text)`` with every run of whitespace (newlines too) folded into
+    one space; longer than ``limit`` characters: cut to ``limit``, ending
+    "...". What every one-line message about an exception or a value uses."""
+    line = " ".join(str(text).split())
+    if limit is not None and len(line) > limit:
+        line = line[:limit - 3] + "..."
+    return line
+
+
 class DriveE2EError(Exception):
     """A user-facing error whose ``str`` is a one-line message.
 
@@ -18,7 +28,7 @@ class DriveE2EError(Exception):
     """
 
     def __init__(self, message: str):
-        super().__init__(" ".join(str(message).split()))
+        super().__init__(one_line(message))
 
     @property
     def message(self) -> str:

@@ -40,7 +40,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.errors import DriveE2EError, one_line
 
 ActionType = Literal["controls", "waypoints"]
 ACTION_TYPES = ("controls", "waypoints")
@@ -362,7 +362,7 @@ def check_action(action: Any, action_type: str, batch: int, where: str, *,
             arr = np.asarray(value)
         except Exception as e:  # noqa: BLE001 - e.g. a CUDA tensor, a tensor requiring grad
             raise DriveE2EError(f"{what}: a {type(value).__name__} that numpy cannot read "
-                                f"({type(e).__name__}: {' '.join(str(e).split())}), expected a float32 array of "
+                                f"({type(e).__name__}: {one_line(e)}), expected a float32 array of "
                                 f"shape {expected} (for torch: tensor.detach().cpu().numpy())") from e
         if arr.dtype.kind not in "fiu":
             raise DriveE2EError(f"{what} has dtype {arr.dtype} ({_describe_value(value)}), expected a float32 "

@@ -24,7 +24,7 @@ import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
-from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.errors import DriveE2EError, one_line
 from drivee2e_jax.hostapi import HostPolicy, load_policy_object, validate_host_policy
 from drivee2e_jax.remote import RemotePolicy, is_remote_spec, parse_remote_spec
 
@@ -126,9 +126,7 @@ def user_frame(exc: BaseException, source: str | Path | None = None) -> str:
 def raised_text(exc: BaseException, source: str | Path | None = None, limit: int = 200) -> str:
     """``raised Type: message at file:line`` on one line: the message cut at
     ``limit`` characters, the place from :func:`user_frame` (when found)."""
-    text = " ".join(str(exc).split())
-    if len(text) > limit:
-        text = text[:limit - 3] + "..."
+    text = one_line(exc, limit)
     frame = user_frame(exc, source)
     return f"raised {type(exc).__name__}" + (f": {text}" if text else "") + (f" at {frame}" if frame else "")
 

@@ -66,7 +66,7 @@ import numpy as np
 import zmq
 
 from drivee2e_jax import __version__
-from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.errors import DriveE2EError, one_line
 from drivee2e_jax.hostapi import (
     ACTION_TYPES,
     Controls,
@@ -224,10 +224,6 @@ def decode(frames: Sequence) -> tuple[dict, list[tuple[tuple[str, ...], np.ndarr
     return header, arrays
 
 
-def _one_line(text: Any) -> str:
-    return " ".join(str(text).split())
-
-
 # --------------------------------------------------------------------------
 # Server
 # --------------------------------------------------------------------------
@@ -338,15 +334,15 @@ def serve(policy: HostPolicy, port: int, host: str = "127.0.0.1", *, source: str
                 reply, out = handle(header, arrays)
                 reply = {"ok": True, **reply}
             except (_WireError, DriveE2EError) as e:
-                reply, out = {"ok": False, "error": _one_line(e)}, []
+                reply, out = {"ok": False, "error": one_line(e)}, []
             except Exception as e:  # noqa: BLE001 - a bug must not take the server down; report it
                 log(traceback.format_exc().rstrip())
-                reply, out = {"ok": False, "error": _one_line(f"{source}: server error: {type(e).__name__}: {e}")}, []
+                reply, out = {"ok": False, "error": one_line(f"{source}: server error: {type(e).__name__}: {e}")}, []
             reply.update(v=PROTOCOL_VERSION, id=header.get("id"), op=header.get("op"))
             try:
                 msg = encode(reply, out)
             except _WireError as e:
-                msg = encode({"ok": False, "error": _one_line(e), "v": PROTOCOL_VERSION, "id": header.get("id")})
+                msg = encode({"ok": False, "error": one_line(e), "v": PROTOCOL_VERSION, "id": header.get("id")})
             sock.send_multipart([ident, *msg], copy=False)
             if once and header.get("op") == "close":
                 break

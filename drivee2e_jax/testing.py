@@ -50,7 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from drivee2e_jax import hostapi
-from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.errors import DriveE2EError, one_line
 from drivee2e_jax.observe import registry
 from drivee2e_jax.observe.sensors import SensorConfig, assets_axes, build_assets
 from drivee2e_jax.policy import load_policy, parse_policy_spec, raised_text, user_frame
@@ -786,12 +786,9 @@ def _describe(value: Any) -> str:
 
 def _exc(e: BaseException, limit: int = 200) -> str:
     """``Type: message`` on one line, the message cut at ``limit`` characters."""
-    text = " ".join(str(e).split())
-    if len(text) > limit:
-        text = text[:limit - 3] + "..."
+    text = one_line(e, limit)
     return f"{type(e).__name__}: {text}" if text else type(e).__name__
 
 
 def _one_line(text: str) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= MAX_LINE else text[:MAX_LINE - 3] + "..."
+    return one_line(text, MAX_LINE)

@@ -24,7 +24,7 @@ import textwrap
 from collections.abc import Callable
 from typing import Any
 
-from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.errors import DriveE2EError, one_line
 
 PROG = "drivee2e"
 
@@ -79,7 +79,7 @@ def error_message(exc: BaseException) -> str:
         return str(exc)
     if isinstance(exc, OSError) and exc.filename is not None:
         return f"{exc.filename}: {exc.strerror or exc}"
-    text = _one_line(exc)
+    text = one_line(exc)
     if isinstance(exc, json.JSONDecodeError):
         return f"invalid JSON: {text}"
     if isinstance(exc, UnicodeDecodeError):
@@ -92,14 +92,9 @@ def error_message(exc: BaseException) -> str:
 def unexpected_message(exc: BaseException) -> str:
     """The one line for an unexpected error (a bug): its type, its message cut
     at ``MAX_MESSAGE`` characters, and how to see the traceback."""
-    text = _one_line(exc)
-    if len(text) > MAX_MESSAGE:
-        text = text[:MAX_MESSAGE - 3] + "..."
+    text = one_line(exc, MAX_MESSAGE)
     return f"{type(exc).__name__}{': ' + text if text else ''} (unexpected; rerun with --debug for the traceback)"
 
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split())
 
 
 def print_error(message: str) -> None:
