@@ -133,7 +133,8 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     spec = cfg.run_spec()
     task = spec.task_spec()
     run_batch = spec.batch(suite)
-    check_dt_against_logs(spec.dt, run_batch.limited().meta)
+    evaluated = run_batch.limited()  # the scenarios run: their log step bounds dt, their arrays are fingerprinted
+    check_dt_against_logs(spec.dt, evaluated.meta)
     if run_batch.variant is not None:
         print_fn(run_batch.variant.summary())
     policy_kwargs = cfg.policy_kwargs or tuple({} for _ in cfg.policies)
@@ -154,7 +155,7 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     out = Path(cfg.out or spec.default_out())
     spec = spec.resolve(suite, run_batch)
     run_info = {**spec.to_json(),  # run.json: the spec + what resuming must also match
-                "fingerprint": {"suite_sha256": batch_sha256(run_batch.limited()),
+                "fingerprint": {"suite_sha256": batch_sha256(evaluated),
                                 "drivee2e_version": package_version()}}
     resumable = {n: None if is_remote_spec(p) else fp for n, p, fp in zip(names, cfg.policies, fingerprints)}
     run, done = distributed.on_root(

@@ -86,7 +86,6 @@ from drivee2e_jax.policy import reference_policy_dir
 from drivee2e_jax.remote import is_remote_spec
 
 
-#: Columns every per-scenario row has, in CSV order (count columns follow).
 def event_key(row: dict) -> str:
     """Key of a row's infraction events in a policy file: the scenario id,
     suffixed ``#<repetition>`` from the second repetition on."""
@@ -94,6 +93,7 @@ def event_key(row: dict) -> str:
     return row["scenario_id"] if not rep else f"{row['scenario_id']}#{rep}"
 
 
+#: Columns every per-scenario row has, in CSV order (count columns follow).
 BASE_COLUMNS = (
     "policy",
     "scenario_id",
@@ -312,7 +312,7 @@ class RunDir:
             data["fingerprint"] = self.policies[policy]
         path = self.policy_file(policy)
         atomic_write_json(path, data)
-        self.files[policy] = (path, json.loads(json.dumps(data, default=json_default)))
+        self.files[policy] = (path, _plain(data))
 
     def load_policy(self, policy: str) -> dict:
         return self.files[policy][1] if policy in self.files else read_policy_file(self.policy_file(policy))

@@ -29,7 +29,14 @@ from drivee2e_jax.eval.bench import BenchConfig, run_bench
 from drivee2e_jax.eval.report import load_rows
 from drivee2e_jax.eval.results import rows_to_csv
 from drivee2e_jax.eval.summary import summary_of
-from drivee2e_jax.files import LOCK_NAME, FolderLocked, atomic_write_json, atomic_write_text, lock_folder
+from drivee2e_jax.files import (
+    LOCK_NAME,
+    FolderLocked,
+    atomic_write_json,
+    atomic_write_text,
+    lock_folder,
+    remove_stray_temp_files,
+)
 from drivee2e_jax.policy import resolve_policy_path
 from drivee2e_jax.progress import progress as progress_bar
 from drivee2e_jax.sweep.config import SimSection, SweepConfig, out_dir
@@ -189,9 +196,7 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
     if force:
         for r in runs:
             (out / "runs" / r.run_id / DONE_FILE).unlink(missing_ok=True)
-    # atomic_write's temp files of a killed process (safe: this sweep holds the folder's lock).
-    for tmp in out.rglob(".*.tmp") if out.exists() else ():
-        tmp.unlink()
+    remove_stray_temp_files(out)  # a killed sweep's (safe: this sweep holds the folder's lock)
     atomic_write_json(meta, record)
 
 

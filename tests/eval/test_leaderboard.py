@@ -5,7 +5,6 @@ and on a real tiny bench run."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import subprocess
@@ -26,9 +25,9 @@ from drivee2e_jax.eval.leaderboard import (
 from drivee2e_jax.eval.summary import ABILITIES, ability_scores, summary_of
 from drivee2e_jax.metrics.aggregate import b2d_efficiency, b2d_merge, lb_global
 from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS
+from tests.helpers.b2d_tools import B2D_TOOLS, load_b2d_tool
 
 REPO = Path(__file__).resolve().parents[2]
-B2D = REPO / "tests" / "data" / "third_party" / "bench2drive"
 TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 RUN_INFO = {"suite": "toy", "suite_version": "1", "split": "val", "num_scenarios": 4, "preset": "b2d", "dt": 0.1}
 COUNT_KEYS = ("collisions_pedestrian", "collisions_vehicle", "collisions_layout", "red_light", "outside_route_lanes",
@@ -199,31 +198,15 @@ def test_global_record_reads_back_as_lb_global_and_written_file_is_atomic_json(t
 
 def _merge(folder: Path) -> dict:
     """tools/merge_route_json.py -f <folder> (a subprocess, as its README runs it)."""
-    subprocess.run([sys.executable, str(B2D / "merge_route_json.py"), "-f", str(folder)], check=True,
+    subprocess.run([sys.executable, str(B2D_TOOLS / "merge_route_json.py"), "-f", str(folder)], check=True,
                    capture_output=True, text=True)
     return json.loads((folder / "merged.json").read_text())
-
-
-def _load_b2d(name: str, monkeypatch):
-    """Import a vendored B2D tool; ``carla`` and CARLA's ``agents`` (imported at
-    its top, used only by its map-based part) are empty stand-ins."""
-    carla = types.ModuleType("carla")
-    planner = types.ModuleType("agents.navigation.global_route_planner")
-    planner.GlobalRoutePlanner = object
-    for mod_name, mod in (("carla", carla), ("agents", types.ModuleType("agents")),
-                          ("agents.navigation", types.ModuleType("agents.navigation")),
-                          ("agents.navigation.global_route_planner", planner)):
-        monkeypatch.setitem(sys.modules, mod_name, mod)
-    spec = importlib.util.spec_from_file_location(f"b2d_{name}", B2D / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _b2d_abilities(records, monkeypatch) -> dict:
     """ability_benchmark.py's success test and counting, with its scenario-type
     table replaced by our behaviour groups (``summary.ABILITIES``)."""
-    ab = _load_b2d("ability_benchmark", monkeypatch)
+    ab = load_b2d_tool("ability_benchmark", monkeypatch)
     monkeypatch.setattr(ab, "Ability", {k: list(v) for k, v in ABILITIES.items()})
     stat = {k: [0, 0] for k in ab.Ability}
     success = {}
@@ -271,7 +254,7 @@ def test_bench2drive_tools_on_the_hand_built_case(tmp_path, monkeypatch):
     assert merged["success rate"] == 1 / 220  # only the Perfect route succeeds
     assert merged["driving score"] == pytest.approx((100 * 0.6 * 0.7 * (1 - 0.045678) + 20 + 100 + 16.25) / 220)
     # Efficiency: efficiency_smoothness_benchmark.read_from_json parses the min-speed messages.
-    eff = _load_b2d("efficiency_smoothness_benchmark", monkeypatch)
+    eff = load_b2d_tool("efficiency_smoothness_benchmark", monkeypatch)
     metric_dir = tmp_path / "metrics"
     for rec in data["_checkpoint"]["records"]:
         (metric_dir / rec["save_name"]).mkdir(parents=True)

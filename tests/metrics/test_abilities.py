@@ -18,9 +18,7 @@ the hand count in each test's comment.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 import types
 from pathlib import Path
 
@@ -41,10 +39,9 @@ from drivee2e_jax.metrics.abilities import (
 from drivee2e_jax.metrics.aggregate import RouteResult
 from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS
 from drivee2e_jax.types import Command
+from tests.helpers.b2d_tools import load_b2d_tool
 from tests.helpers.metric_cases import subset_case
 from tests.helpers.metric_cases.aggregate import b2d01_records
-
-B2D_TOOLS = Path(__file__).resolve().parents[1] / "data" / "third_party" / "bench2drive"
 
 #: (route id, scenario type, status, infraction counts, RC %, waypoints, first junction index 0-based);
 #: status None = crashed (no record).
@@ -135,24 +132,9 @@ class StandInPlanner:
         return [(types.SimpleNamespace(is_junction=i == j), None) for i in range(n)]
 
 
-def stand_in_modules(monkeypatch) -> None:
-    carla = types.ModuleType("carla")
-    carla.Location = lambda x, y, z: (x, y, z)
-    planner = types.ModuleType("agents.navigation.global_route_planner")
-    planner.GlobalRoutePlanner = StandInPlanner
-    for name, mod in (("carla", carla), ("agents", types.ModuleType("agents")),
-                      ("agents.navigation", types.ModuleType("agents.navigation")),
-                      ("agents.navigation.global_route_planner", planner)):
-        monkeypatch.setitem(sys.modules, name, mod)
-
-
 def load_b2d_004(monkeypatch):
     """The vendored (0.0.4) ``ability_benchmark`` module, imported with the stand-ins."""
-    stand_in_modules(monkeypatch)
-    spec = importlib.util.spec_from_file_location("b2d_ability_benchmark", B2D_TOOLS / "ability_benchmark.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_b2d_tool("ability_benchmark", monkeypatch, planner=StandInPlanner)
 
 
 def run_b2d_004(tmp_path: Path, monkeypatch, inputs) -> dict:
