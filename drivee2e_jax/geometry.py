@@ -163,6 +163,30 @@ def boxes_overlap(
     return box_penetration(xy_a, yaw_a, lw_a, xy_b, yaw_b, lw_b) > eps
 
 
+def segment_box_intersect(p: Array, q: Array, xy: Array, yaw: Array, lw: Array) -> Array:
+    """() bool: the segment ``p``-``q`` ((2,) each, m) touches the oriented box
+    (centre ``xy`` (2,), heading ``yaw``, ``lw`` = length, width) -- shapely's
+    ``LineString.intersects(Polygon)``: an endpoint inside or an edge crossed.
+
+    Liang-Barsky clipping of the segment in the box frame: the parameter range
+    [0, 1] is cut by each slab ``|x| <= l/2``, ``|y| <= w/2``; it intersects
+    when the range stays non-empty.
+    """
+    a = to_frame(p[None], xy, yaw)[0]
+    d = to_frame(q[None], xy, yaw)[0] - a
+    half = 0.5 * lw[:2]
+    lo, hi = jnp.zeros(()), jnp.ones(())
+    for k in range(2):
+        parallel = jnp.abs(d[k]) < _TINY
+        inv = 1.0 / jnp.where(parallel, 1.0, d[k])
+        t1, t2 = (-half[k] - a[k]) * inv, (half[k] - a[k]) * inv
+        lo = jnp.where(parallel, lo, jnp.maximum(lo, jnp.minimum(t1, t2)))
+        hi = jnp.where(parallel, hi, jnp.minimum(hi, jnp.maximum(t1, t2)))
+        # A segment parallel to a slab misses unless it runs inside it.
+        hi = jnp.where(parallel & (jnp.abs(a[k]) > half[k]), -1.0, hi)
+    return lo <= hi
+
+
 # --------------------------------------------------------------------------
 # Padded polygons
 # --------------------------------------------------------------------------

@@ -11,6 +11,7 @@ de-duplication, route completion windows, checkpoints ...) lives in
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -18,7 +19,7 @@ from flax import struct
 
 from drivee2e_jax import geometry
 from drivee2e_jax.replay import SNAP, AgentStates
-from drivee2e_jax.types import Category, CollisionClass, EgoState, MapData, Marking, SignalState, Tracks
+from drivee2e_jax.types import Category, CollisionClass, CollisionType, EgoState, MapData, Marking, SignalState, Tracks
 
 # Collision classes as CARLA's collision test names them.
 CLASS_WALKER = int(CollisionClass.PEDESTRIAN)
@@ -58,6 +59,18 @@ class StepFacts:
                      marking (dashed, solid, double solid) this tick.
       lane_invasion_marking: int32 ``Marking`` of the crossed line (the
                      strictest if several; NONE if none).
+      collision_type: int32 ``CollisionType`` of this tick's agent contact
+                     (-1 none; ``collision_type``).
+      at_fault:      bool, that contact is the ego's fault (``at_fault``).
+      multi_lane:    bool, no single lane holds all four ego corners
+                     (``lane_footprint``).
+      drivable_excess_m: float32 how far the farthest ego corner lies outside
+                     the lanes near the route, m (0 inside).
+      speed_limit:   float32 lane speed limit at the ego's route point, m/s.
+      nuplan:        ``metrics.nuplan.NuplanTick`` under the ``nuplan``
+                     preset, else None.
+      navsim:        ``metrics.navsim.NavsimTick`` under the ``navsim``
+                     preset, else None.
     """
 
     agent_hit: jnp.ndarray
@@ -75,6 +88,13 @@ class StepFacts:
     front_distance: jnp.ndarray
     lane_invasion: jnp.ndarray
     lane_invasion_marking: jnp.ndarray
+    collision_type: jnp.ndarray
+    at_fault: jnp.ndarray
+    multi_lane: jnp.ndarray
+    drivable_excess_m: jnp.ndarray
+    speed_limit: jnp.ndarray
+    nuplan: Any = None
+    navsim: Any = None
 
 
 #: At most this many agents per episode are exempt for a logged overlap with
@@ -100,8 +120,8 @@ def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, t
     """Which replayed agent (if any) the ego box overlaps.
 
     Tests the candidate rows ``near`` (nearest first, from ``nearest_rows``)
-    and returns (hit, track id, class, category) of the nearest overlapping
-    one. CARLA reports one collision event per contact; one per tick is
+    and returns (hit, track id, class, category, row) of the nearest
+    overlapping one. CARLA reports one collision event per contact; one per tick is
     enough here because ``CollisionDedup`` drops repeats of the same actor
     within 5 s and any contact within 5 m of the last counted one.
     """
@@ -112,7 +132,87 @@ def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, t
     i = near[jnp.argmax(overlap)]
     cat = category[i]
     cls = jnp.where(cat == Category.PEDESTRIAN, CLASS_WALKER, CLASS_VEHICLE)
-    return overlap.any(), track_id[i], cls.astype(jnp.int32), cat.astype(jnp.int32)
+    return overlap.any(), track_id[i], cls.astype(jnp.int32), cat.astype(jnp.int32), i
+
+
+#: nuPlan's ``stopped_speed_threshold``: a speed at or below this is stopped, m/s.
+STOPPED_SPEED = 0.05
+#: nuPlan's ``is_agent_behind`` angle tolerance: a track whose centre lies more
+#: than this far off the ego's heading, seen from the rear axle, is behind.
+BEHIND_ANGLE = math.radians(150.0)
+
+
+def collision_type(ego: EgoState, ego_lw, rear_offset, other_xy, other_yaw, other_lw, other_speed):
+    """() int32 ``CollisionType`` of a contact between the ego and one track.
+
+    nuPlan's ``_get_collision_type`` (``no_ego_at_fault_collisions.py``), in
+    its order: the ego stopped (speed <= 0.05 m/s); else the track stopped;
+    else ACTIVE_REAR when the track's centre is behind the ego's rear axle
+    (angle to the heading > 150 deg, ``idm/utils.py: is_agent_behind``); else
+    ACTIVE_FRONT when the ego's front edge (FL-FR) touches the track's box;
+    else ACTIVE_LATERAL.
+
+    Args:
+      ego: the ego after the step (box centre ``xy``, ``yaw``, ``speed`` m/s).
+      ego_lw: (2,) ego length, width, m.  rear_offset: () m from the rear axle
+        to the box centre.
+      other_xy (2,), other_yaw (), other_lw (2,), other_speed (): the track, m, rad, m/s.
+    """
+    heading = jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)])
+    to_other = other_xy - (ego.xy - rear_offset * heading)
+    cos_angle = geometry.dot(heading, to_other) / jnp.maximum(geometry.safe_norm(to_other), 1e-9)
+    behind = cos_angle < math.cos(BEHIND_ANGLE)
+    corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])  # FR, FL, RL, RR
+    front = geometry.segment_box_intersect(corners[1], corners[0], other_xy, other_yaw, other_lw)
+    kind = jnp.where(
+        ego.speed <= STOPPED_SPEED, CollisionType.STOPPED_EGO,
+        jnp.where(other_speed <= STOPPED_SPEED, CollisionType.STOPPED_TRACK,
+                  jnp.where(behind, CollisionType.ACTIVE_REAR,
+                            jnp.where(front, CollisionType.ACTIVE_FRONT, CollisionType.ACTIVE_LATERAL))))
+    return kind.astype(jnp.int32)
+
+
+def at_fault(kind, multi_lane, drivable_excess_m):
+    """() bool: a contact of ``CollisionType`` ``kind`` is the ego's fault.
+
+    nuPlan's ``classify_at_fault_collisions``: a stopped track or the ego's
+    front hitting something, or a lateral contact while the ego is in several
+    lanes or outside the drivable area. Contacts with the ego stopped and
+    rear-end contacts are never its fault (-1, no contact: False).
+    """
+    lateral = (kind == CollisionType.ACTIVE_LATERAL) & (multi_lane | (drivable_excess_m > 0.0))
+    return (kind == CollisionType.STOPPED_TRACK) | (kind == CollisionType.ACTIVE_FRONT) | lateral
+
+
+def lane_footprint(ego: EgoState, ego_lw, lane_xy, lane_point_valid, lane_valid, lane_width):
+    """Where the ego box lies relative to the M candidate lanes (any direction).
+
+    Each corner's signed offset from each lane is measured against the line
+    through the lane's nearest vertex along its local heading (lanes are
+    straight over a car's length; at a 10 m junction radius the error at a
+    corner 2.5 m ahead is 0.3 m). A corner is inside a lane within its
+    width / 2.
+
+    Returns (multi_lane: () bool, no single lane holds all four corners --
+    nuPlan's "ego in multiple lanes" from ``ego_lane_change.py``;
+    drivable_excess_m: () float32, the largest distance of a corner outside
+    every lane, 0 when each corner is in some lane -- the drivable area being
+    the union of the lanes).
+    """
+    corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
+
+    def offsets(xy, valid):
+        d2 = jnp.sum((xy - ego.xy) ** 2, axis=-1)
+        j = jnp.argmin(jnp.where(valid, d2, jnp.inf))
+        _, heading = geometry.nearest_segment(ego.xy, xy, valid)
+        u = jnp.stack([jnp.cos(heading), jnp.sin(heading)])
+        return geometry.cross2(u, corners - xy[j])  # (4,) m, left positive
+
+    lat = jax.vmap(offsets)(lane_xy, lane_point_valid)  # (M, 4)
+    excess = jnp.where(lane_valid[:, None], jnp.abs(lat) - 0.5 * lane_width[:, None], jnp.inf)
+    multi = ~jnp.any(jnp.all(excess <= 0.0, axis=1))
+    outside = jnp.maximum(excess.min(axis=0).max(), 0.0)
+    return multi, jnp.where(jnp.isfinite(outside), outside, jnp.float32(1e3))
 
 
 def logged_overlap_spans(tracks: Tracks, ego_index, ego_lw):

@@ -31,6 +31,7 @@ import numpy as np
 from flax import struct
 
 from drivee2e_jax.observe import sensors
+from drivee2e_jax.policy import StatelessPolicy
 from drivee2e_jax.sim import SimState, Simulator
 from drivee2e_jax.types import Controls, Scenario, Waypoints
 
@@ -152,6 +153,8 @@ class Rollout:
             applied = proposed
             queue = None
         sim_state, _, log = self.sim.step(scenario, carry.sim, applied, assets, observe=False)
+        if self.sim.config.score.name == "navsim" and isinstance(applied, Waypoints):
+            log = log.replace(plan=applied.xy)  # NAVSIM's extended comfort compares consecutive plans
         nonfinite = carry.nonfinite + (log.active & ~_all_finite(applied)).astype(jnp.int32)
         return Carry(sim=sim_state, policy_state=pstate, held=applied, queue=queue, key=key, nonfinite=nonfinite), log
 
@@ -191,6 +194,29 @@ class Rollout:
                 break
         stacked = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *logs)
         return carry, stacked
+
+
+class LogReplay(StatelessPolicy):
+    """The reference demonstration as a policy (``zoo/log_replay.py`` ships it
+    by name): each step the controls that move the simulated ego onto the
+    logged next pose (``Observation.privileged.log_controls``). ``evaluate``
+    also rolls it out as NAVSIM's human reference."""
+
+    name = "log_replay"
+    action_type = "controls"
+
+    def act(self, params, obs, policy_state, key):
+        c = obs.privileged.log_controls
+        # Past the end of the ego's log: hold still.
+        ok = obs.privileged.log_valid
+        return (
+            Controls(
+                throttle=jnp.where(ok, c.throttle, 0.0),
+                brake=jnp.where(ok, c.brake, 1.0),
+                steer=jnp.where(ok, c.steer, 0.0),
+            ),
+            policy_state,
+        )
 
 
 def balanced_chunk(total_steps: int, max_chunk: int, multiple: int = 1) -> int:

@@ -4,7 +4,10 @@ Per step: sanitise the action -> controls (waypoints go through the
 controller) -> the ego's ``dynamics.DynamicsModel`` (``SimConfig.dynamics_model``,
 the kinematic bicycle by default) -> replay every logged agent and the signals
 at the new time -> infraction facts (``infractions``) -> leaderboard criteria
-(``metrics.criteria``) -> observation. Non-ego agents never react.
+(``metrics.criteria``) -> observation. Non-ego agents replay the log and never
+react (``SimConfig.agents = "log"``, the paper's protocol) unless
+``SimConfig.agents = "idm"``: logged vehicles then keep their paths with an
+IDM speed (``reactive``).
 
 The scenario is passed explicitly to ``step`` (as gymnax passes ``EnvParams``)
 rather than stored in the state, so the static log is not carried through the
@@ -20,9 +23,10 @@ import jax.numpy as jnp
 from flax import struct
 
 from drivee2e_jax import controller as ctl
-from drivee2e_jax import dynamics, geometry, infractions, replay
+from drivee2e_jax import dynamics, geometry, infractions, reactive, replay
 from drivee2e_jax.dynamics import DynamicsModel, KinematicBicycle
 from drivee2e_jax.metrics import episode as ep
+from drivee2e_jax.metrics import navsim, nuplan
 from drivee2e_jax.metrics.driving_score import ScoreConfig, score_preset
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.vector import ObsConfig, observe, route_speed_limits
@@ -32,6 +36,10 @@ from drivee2e_jax.types import Controls, EgoState, Observation, Privileged, Scen
 NUM_CANDIDATE_LANES = 16
 #: Lane boundaries near the route tested for lane invasions.
 NUM_CANDIDATE_BOUNDARIES = 16
+
+#: ``SimConfig.agents`` choices (``--agents``); "log" is the paper's non-reactive replay.
+AGENT_MODELS = ("log", "idm")
+
 
 @dataclasses.dataclass(frozen=True)
 class SimConfig:
@@ -51,6 +59,12 @@ class SimConfig:
       max_episode_s: episode cap in seconds; ``None`` = the scenario's log length.
       dynamics_model: the ego's ``dynamics.DynamicsModel`` (frozen, hashable:
         static under jit); default the kinematic bicycle.
+      idm: ``reactive.IDMParams`` of the IDM agents (``agents="idm"``).
+      agents: the other agents' model (``AGENT_MODELS``): "log" replays every
+        recorded track (non-reactive, the paper's protocol); "idm" keeps each
+        logged vehicle on its logged path with its speed from IDM, reacting
+        to the ego and to each other (``reactive``; pedestrians, cyclists and
+        static objects still replay).
     """
 
     dt: float = 0.1
@@ -61,8 +75,12 @@ class SimConfig:
     score: ScoreConfig = dataclasses.field(default_factory=lambda: score_preset("paper"))
     max_episode_s: float | None = None
     dynamics_model: DynamicsModel = dataclasses.field(default_factory=KinematicBicycle)
+    agents: str = "log"
+    idm: reactive.IDMParams = dataclasses.field(default_factory=reactive.IDMParams)
 
     def __post_init__(self):
+        if self.agents not in AGENT_MODELS:
+            raise ValueError(f"unknown agent model {self.agents!r}; expected one of {', '.join(AGENT_MODELS)}")
         if not isinstance(self.dynamics_model, DynamicsModel):
             raise TypeError(f"SimConfig.dynamics_model must be a dynamics.DynamicsModel, got {self.dynamics_model!r}")
         # The waypoint controller steers for the car being simulated.
@@ -92,6 +110,8 @@ class SimContext:
                  LOGGED ego box already overlaps each agent's logged box
                  ([T, -1]: none); a contact with that agent is ignored
                  meanwhile (``infractions.logged_overlap_spans``).
+      path_arc:  (A, T) float32 arc length along each logged path, m, with
+                 IDM agents (``reactive.path_arc``); None otherwise.
     """
 
     lanes: jnp.ndarray
@@ -102,6 +122,7 @@ class SimContext:
     speed_limit: jnp.ndarray
     obstacles: geometry.PolygonSAT
     log_overlap: jnp.ndarray
+    path_arc: jnp.ndarray | None = None
 
 
 @struct.dataclass
@@ -119,6 +140,8 @@ class SimState:
         ``Simulator.observe`` is a pure function of the state (the same key
         whether the observation is rendered at the end of ``step`` or at the
         start of the next one).
+      idm: ``reactive.IDMState`` of the IDM agents (``SimConfig.agents`` =
+        "idm"); None when the agents replay the log.
     """
 
     ego: EgoState
@@ -128,6 +151,7 @@ class SimState:
     ctx: SimContext
     key: jnp.ndarray
     obs_key: jnp.ndarray
+    idm: reactive.IDMState | None = None
 
     @property
     def done(self):
@@ -145,6 +169,9 @@ class StepLog:
       facts: ``infractions.StepFacts`` of this step.
       events: ``metrics.episode.StepEvents`` counted this step.
       route_completion: () % after the step.
+      plan: (K, 2) the waypoints applied this step (ego frame, m) under the
+        ``navsim`` preset with a waypoint policy (its extended comfort), else
+        None; set by the rollout.
     """
 
     t: jnp.ndarray
@@ -161,6 +188,7 @@ class StepLog:
     facts: infractions.StepFacts
     events: ep.StepEvents
     route_completion: jnp.ndarray
+    plan: jnp.ndarray | None = None
 
 
 def _near_route(lines, route, m: int):
@@ -237,10 +265,17 @@ class Simulator:
         self.config = config or SimConfig()
 
     # -- helpers -----------------------------------------------------------
-    def agents(self, scenario: Scenario, t):
-        """The replayed agents at time ``t`` (s), the ego's row marked invalid
-        (``replay.AgentStates``, (A, ...))."""
-        agents = replay.agents_at(scenario.tracks, t, scenario.dt_log)
+    def agents(self, scenario: Scenario, t, state: SimState | None = None):
+        """The other agents at time ``t`` (s), the ego's row marked invalid
+        (``replay.AgentStates``, (A, ...)). With IDM agents (``SimConfig.agents``)
+        they depend on the episode: pass its ``state``, whose time ``t`` must be
+        (its ``reactive.IDMState.agents``)."""
+        if self.config.agents == "idm":
+            if state is None:
+                raise ValueError("Simulator.agents: with agents='idm' the positions depend on the episode; pass state=")
+            agents = state.idm.agents
+        else:
+            agents = replay.agents_at(scenario.tracks, t, scenario.dt_log)
         not_ego = jnp.arange(agents.valid.shape[0]) != scenario.ego_index
         return agents.replace(valid=agents.valid & not_ego)
 
@@ -257,7 +292,7 @@ class Simulator:
         policy reads it (``step(..., observe=False)``), so under ``jit`` the
         outputs the policy does not read are never computed and nothing large
         rides in the scan carry. ``assets`` as in ``reset``."""
-        return self._observe(scenario, state, self.agents(scenario, state.ego.t), state.obs_key, assets)
+        return self._observe(scenario, state, self.agents(scenario, state.ego.t, state), state.obs_key, assets)
 
     def _observe(self, scenario: Scenario, state: SimState, agents, key, assets=None) -> Observation:
         lane_xy, lane_pv, _, _ = _lane_rows(scenario, state.ctx.lanes)
@@ -315,6 +350,7 @@ class Simulator:
             speed_limit=_route_speed_limits(scenario, lanes),
             obstacles=infractions.obstacle_sat(scenario.map),
             log_overlap=infractions.logged_overlap_spans(tr, i, tr.size[i, :2]),
+            path_arc=reactive.path_arc(tr) if self.config.agents == "idm" else None,
         )
         n_overlaps = infractions.logged_overlap_count(
             ctx.log_overlap, self.episode_steps(scenario) * self.config.dt, scenario.dt_log)
@@ -327,8 +363,10 @@ class Simulator:
             ctx=ctx,
             key=key,
             obs_key=k_obs,
+            idm=(reactive.init(tr, scenario.dt_log, self.config.idm, ego_index=i)
+                 if self.config.agents == "idm" else None),
         )
-        obs = self._observe(scenario, state, self.agents(scenario, ego.t), k_obs, assets)
+        obs = self._observe(scenario, state, self.agents(scenario, ego.t, state), k_obs, assets)
         return state, obs
 
     def to_controls(self, state: SimState, action) -> tuple[Controls, ctl.ControllerState, jnp.ndarray]:
@@ -357,7 +395,11 @@ class Simulator:
         ego = cfg.dynamics_model.step(state.ego, controls, cfg.dt, cfg.dynamics)
         # Time from the step count: an accumulated float32 t drifts.
         ego = ego.replace(t=(state.step + 1).astype(jnp.float32) * cfg.dt)
-        agents = self.agents(scenario, ego.t)
+        idm = state.idm
+        if cfg.agents == "idm":  # the vehicles react to the ego's new pose and to each other
+            idm = reactive.step(idm, scenario.tracks, state.ctx.path_arc, state.ego.t, cfg.dt, scenario.dt_log,
+                                ego.xy, ego.yaw, ego.speed, state.ctx.ego_lw, cfg.idm, ego_index=scenario.ego_index)
+        agents = self.agents(scenario, ego.t, state.replace(idm=idm))
         signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
         facts = self._facts(scenario, state, ego, agents, signals)
         truncate = state.step + 1 >= self.episode_steps(scenario)
@@ -366,7 +408,7 @@ class Simulator:
         )
         key, k_obs = jax.random.split(state.key)
         new = SimState(ego=ego, step=state.step + 1, episode=episode, controller=cstate, ctx=state.ctx, key=key,
-                       obs_key=k_obs)
+                       obs_key=k_obs, idm=idm)
         # Freeze finished episodes: keep the old state, record nothing (the
         # per-episode constants in ctx need no select).
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new.replace(ctx=None), state.replace(ctx=None))
@@ -398,7 +440,7 @@ class Simulator:
         near, near_ok = infractions.nearest_rows(ego, agents)
         # A pair already overlapping in the log is not tested while that lasts.
         exempt = infractions.logged_overlap_exempt(state.ctx.log_overlap[near], ego.t, scenario.dt_log)
-        hit, hit_id, hit_cls, hit_cat = infractions.agent_contacts(
+        hit, hit_id, hit_cls, hit_cat, hit_row = infractions.agent_contacts(
             ego, lw, agents, tr.size, tr.category, tr.track_id, near, near_ok & ~exempt
         )
         red, red_i, red_lines = infractions.red_light_crossing(
@@ -406,9 +448,16 @@ class Simulator:
         )
         lane_xy, lane_pv, lane_ok, lane_w = _lane_rows(scenario, state.ctx.lanes)
         off, offset = infractions.lane_status(ego, lane_xy, lane_pv, lane_ok, lane_w)
+        multi_lane, excess = infractions.lane_footprint(ego, lw, lane_xy, lane_pv, lane_ok, lane_w)
+        rear_offset = getattr(self.config.dynamics, "lr", 0.0)
+        kind = infractions.collision_type(
+            ego, lw, rear_offset, agents.xy[hit_row], agents.yaw[hit_row], tr.size[hit_row, :2],
+            geometry.safe_norm(agents.vel[hit_row]),
+        )
+        kind = jnp.where(hit, kind, -1)
         bg, bg_ok = infractions.background_speed(ego, agents, tr.category)
         invaded, invaded_marking = infractions.lane_invasion(state.ego, ego, lw, state.ctx.markings)
-        return infractions.StepFacts(
+        facts = infractions.StepFacts(
             agent_hit=hit,
             agent_hit_id=hit_id,
             agent_hit_class=hit_cls,
@@ -424,7 +473,25 @@ class Simulator:
             front_distance=infractions.front_distance(ego, lw, agents, tr.size),
             lane_invasion=invaded,
             lane_invasion_marking=invaded_marking,
+            collision_type=kind,
+            at_fault=hit & infractions.at_fault(kind, multi_lane, excess),
+            multi_lane=multi_lane,
+            drivable_excess_m=excess,
+            speed_limit=state.ctx.speed_limit[ep.route_index(state.episode)],
         )
+        preset = self.config.score.name
+        if preset not in ("nuplan", "navsim"):
+            return facts
+        wheelbase = getattr(self.config.dynamics, "wheelbase", nuplan.DEFAULT_WHEELBASE)
+        lane_type = scenario.map.lane_type[jnp.maximum(state.ctx.lanes, 0)]
+        # Both need "in the junction": the ego centre on a connector lane.
+        on_lanes = navsim.tick(ego, lw, agents, tr.size, near, near_ok, lane_xy, lane_pv, lane_ok, lane_type, lane_w,
+                               multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase)
+        if preset == "navsim":
+            return facts.replace(navsim=on_lanes)
+        wide = multi_lane | (excess > 0.0) | on_lanes.in_junction
+        return facts.replace(nuplan=nuplan.tick(state.ego.xy, ego, lw, agents, tr.size, near, near_ok, lane_xy,
+                                                lane_pv, lane_ok, lane_w, wide_view=wide, wheelbase=wheelbase))
 
 
 def sanitize_controls(c: Controls) -> tuple[Controls, jnp.ndarray]:

@@ -69,6 +69,22 @@ class CollisionClass(enum.IntEnum):
     OTHER = 3
 
 
+class CollisionType(enum.IntEnum):
+    """nuPlan's collision types (``nuplan/planning/metrics/utils/collision_utils.py``,
+    ``CollisionType``), in its order; ``infractions.collision_type`` classifies."""
+
+    STOPPED_EGO = 0
+    STOPPED_TRACK = 1
+    ACTIVE_FRONT = 2
+    ACTIVE_REAR = 3
+    ACTIVE_LATERAL = 4
+
+
+#: Names of ``CollisionType`` in results (events, tables); a static-layout
+#: contact is "static".
+COLLISION_TYPE_NAMES = ("stopped_ego", "stopped_track", "active_front", "active_rear", "active_lateral")
+
+
 #: Categories that CARLA scores as ``collisions_vehicle`` (everything but walkers).
 VEHICLE_LIKE = tuple(c for c in Category if c != Category.PEDESTRIAN)
 

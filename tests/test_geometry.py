@@ -396,3 +396,58 @@ def test_nearest_segment_matches_full_projection_on_dense_polylines():
             d, h = nearest_segment(jnp.asarray(p), jnp.asarray(xy), jnp.asarray(valid))
             np.testing.assert_allclose(float(d), float(want.distance), atol=1e-4)
             assert abs(math.remainder(float(h) - float(want.heading), 2 * math.pi)) < 1e-4 or float(d) < 1e-3
+
+
+# --------------------------------------------------------------------------
+# Segment vs oriented box (nuPlan's front-bumper test)
+# --------------------------------------------------------------------------
+
+_seg_box = jax.jit(jax.vmap(geo.segment_box_intersect))
+
+
+def test_segment_box_intersect_vs_shapely_random():
+    """Oracle: shapely ``LineString.intersects(Polygon)``, the test nuPlan's ``_get_collision_type``
+    (no_ego_at_fault_collisions.py) applies to the ego's front edge. 400 seeded segment/box pairs
+    around each other; pairs within ``BAND`` of touching are excluded (float32 vs float64)."""
+    rng = np.random.default_rng(7)
+    n = 400
+    xy = rng.uniform(-2, 2, (n, 2)).astype(np.float32)
+    yaw = rng.uniform(-np.pi, np.pi, n).astype(np.float32)
+    lw = rng.uniform(0.5, 6.0, (n, 2)).astype(np.float32)
+    p = rng.uniform(-6, 6, (n, 2)).astype(np.float32)
+    q = (p + rng.uniform(-8, 8, (n, 2))).astype(np.float32)
+    got = np.asarray(_seg_box(jnp.asarray(p), jnp.asarray(q), jnp.asarray(xy), jnp.asarray(yaw), jnp.asarray(lw)))
+    compared = hits = 0
+    for i in range(n):
+        box = _shapely_box(xy[i], yaw[i], lw[i])
+        line = LineString([p[i].astype(np.float64), q[i].astype(np.float64)])
+        if line.distance(box) < BAND and line.intersection(box).length < BAND:
+            continue  # touching: either answer is right
+        want = line.intersects(box)
+        assert bool(got[i]) == want, (p[i], q[i], xy[i], yaw[i], lw[i])
+        compared += 1
+        hits += want
+    assert compared > 380 and 0.2 * compared < hits < 0.8 * compared  # both outcomes well represented
+
+
+def test_segment_box_intersect_special_cases():
+    one = jax.jit(geo.segment_box_intersect)
+    box = (jnp.zeros(2), jnp.float32(0.0), jnp.array([4.0, 2.0]))  # x in [-2, 2], y in [-1, 1]
+
+    def hit(p, q, xy=box[0], yaw=box[1], lw=box[2]):
+        return bool(one(jnp.array(p, jnp.float32), jnp.array(q, jnp.float32), xy, yaw, lw))
+
+    assert hit([-0.5, 0.0], [0.5, 0.0])  # wholly inside: no edge crossed
+    assert hit([-3.0, 0.5], [3.0, 0.5])  # parallel to x, inside the y slab
+    assert not hit([-3.0, 1.5], [3.0, 1.5])  # parallel to x, outside the y slab
+    assert hit([1.5, -3.0], [1.5, 3.0])  # parallel to y, through
+    assert not hit([2.5, -3.0], [2.5, 3.0])
+    assert hit([0.3, 0.2], [0.3, 0.2])  # a point inside
+    assert not hit([3.0, 0.0], [3.0, 0.0])  # a point outside
+    assert not hit([3.0, 0.0], [5.0, 0.0])  # on the axis but short of the box
+    assert not hit([1.5, 2.5], [3.5, 0.5])  # diagonal x + y = 4 passing the corner (2, 1) outside
+    assert hit([0.5, 2.0], [2.5, 0.0])  # diagonal cutting the corner (x + y = 2.5 < 3)
+    # Rotated 90 deg about (10, 0): the box spans x in [9, 11], y in [-2, 2].
+    rot = dict(xy=jnp.array([10.0, 0.0]), yaw=jnp.float32(np.pi / 2))
+    assert hit([8.0, 1.8], [12.0, 1.8], **rot)
+    assert not hit([8.0, 2.2], [12.0, 2.2], **rot)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import LineString, Point
@@ -15,6 +16,7 @@ from drivee2e_jax.dynamics import ego_from_log
 from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.policy import load_policy, resolve_policy_path
 from drivee2e_jax.records import TrackRecord
+from drivee2e_jax.types import CollisionType as CT
 from drivee2e_jax.types import Marking, Tracks
 from tests.helpers import sim_scenarios as ss
 
@@ -173,3 +175,136 @@ def test_log_replay_is_not_charged_for_an_overlap_the_log_starts_with():
     assert (rows["runs_in"]["collisions_vehicle"], rows["runs_in"]["log_overlaps"]) == (1, 0)
     assert (rows["clean"]["collisions_vehicle"], rows["clean"]["log_overlaps"], rows["clean"]["driving_score"]) \
         == (0, 0, 100.0)
+
+
+# ---------------------------------------------------------------- at-fault collision attribution
+# Expected values follow nuPlan (motional/nuplan-devkit):
+#   nuplan/planning/metrics/evaluation_metrics/common/no_ego_at_fault_collisions.py
+#     ``_get_collision_type`` (order: ego stopped, track stopped, behind, front bumper, lateral)
+#     and ``classify_at_fault_collisions`` (the at-fault rule);
+#   nuplan/planning/simulation/observation/idm/utils.py ``is_agent_behind`` (150 deg from the rear axle).
+
+_type = jax.jit(inf.collision_type)
+REAR = 1.4  # m, rear axle behind the box centre
+CAR = jnp.array([4.5, 1.9])
+
+
+def _moving(x, y, yaw, speed):
+    """Ego box at (x, y) heading ``yaw`` with ``speed`` m/s along it (float32)."""
+    return ego_from_log(jnp.array([x, y]), jnp.asarray(yaw), jnp.float32(speed) * jnp.array([np.cos(yaw), np.sin(yaw)]),
+                        jnp.zeros(()))
+
+
+def _kind(ego_speed, xy, yaw, speed, ego_lw=LW):
+    ego = _moving(0.0, 0.0, 0.0, ego_speed)
+    return CT(int(_type(ego, ego_lw, REAR, jnp.asarray(xy, jnp.float32), jnp.float32(yaw), CAR, jnp.float32(speed))))
+
+
+def test_collision_type_constants_are_nuplans():
+    # stopped_speed_threshold = 5e-02 (``_get_collision_type``), angle_tolerance = 150 (``is_agent_behind``).
+    assert inf.STOPPED_SPEED == 0.05
+    assert inf.BEHIND_ANGLE == pytest.approx(np.deg2rad(150.0))
+
+
+def test_stopped_ego_boundary_is_inclusive():
+    # A moving car 3 m ahead on the ego's lane: the ego's front bumper is in it.
+    assert _kind(0.05, (3.0, 0.0), 0.0, 5.0) == CT.STOPPED_EGO  # speed <= threshold: stopped
+    assert _kind(0.0, (-3.0, 0.0), 0.0, 5.0) == CT.STOPPED_EGO  # even when hit from behind
+    assert _kind(0.051, (3.0, 0.0), 0.0, 5.0) == CT.ACTIVE_FRONT  # above: not stopped
+
+
+def test_stopped_track_comes_before_geometry():
+    # Ego moving; the track is at or below 0.05 m/s (nuPlan ``is_track_stopped``), wherever it is.
+    assert _kind(5.0, (3.0, 0.0), 0.0, 0.05) == CT.STOPPED_TRACK
+    assert _kind(5.0, (-4.0, 0.0), 0.0, 0.0) == CT.STOPPED_TRACK  # behind, but stopped first
+    assert _kind(5.0, (-4.0, 0.0), 0.0, 0.051) == CT.ACTIVE_REAR
+
+
+def test_car_hitting_the_ego_from_behind_is_active_rear():
+    # Track centre 4.5 m behind the box centre: 3.1 m behind the rear axle, angle 180 deg > 150.
+    assert _kind(5.0, (-4.5, 0.0), 0.0, 8.0) == CT.ACTIVE_REAR
+
+
+def test_behind_is_150_degrees_from_the_rear_axle():
+    # A track centre 3 m from the rear axle (-1.4, 0) at 151 deg is behind; at 149 deg it is not,
+    # and it is clear of the front bumper (x = 2.3), so lateral.
+    for deg, want in ((151.0, CT.ACTIVE_REAR), (149.0, CT.ACTIVE_LATERAL)):
+        a = np.deg2rad(deg)
+        assert _kind(5.0, (-REAR + 3.0 * np.cos(a), 3.0 * np.sin(a)), 0.0, 6.0) == want
+
+
+def test_front_bumper_into_a_moving_cars_side_is_active_front():
+    # Crossing car (heading +y) centred 3 m ahead: its box spans x in [2.05, 3.95], y in [-2.25, 2.25];
+    # the ego's front edge x = 2.3, y in [-1, 1] lies inside it.
+    assert _kind(5.0, (3.0, 0.0), np.pi / 2, 6.0) == CT.ACTIVE_FRONT
+    # 3.5 m ahead the box starts at x = 2.55: the front edge misses it -> lateral.
+    assert _kind(5.0, (3.5, 0.0), np.pi / 2, 6.0) == CT.ACTIVE_LATERAL
+
+
+def test_side_swipe_is_active_lateral():
+    # Car alongside on the left (x in [-3.75, 0.75], y in [0.95, 2.85]) overlapping the ego's left side;
+    # from the rear axle it is at ~93 deg (not behind) and the front edge (x = 2.3) misses it.
+    assert _kind(5.0, (-1.5, 1.9), 0.0, 6.0) == CT.ACTIVE_LATERAL
+    # Moved forward so the ego's front-left corner (2.3, 1.0) is inside its box: front.
+    assert _kind(5.0, (0.5, 1.9), 0.0, 6.0) == CT.ACTIVE_FRONT
+
+
+def test_at_fault_truth_table():
+    """``classify_at_fault_collisions``: STOPPED_TRACK, ACTIVE_FRONT always; ACTIVE_LATERAL only
+    in several lanes or off the drivable area; STOPPED_EGO, ACTIVE_REAR and no contact (-1) never."""
+    fault = jax.jit(inf.at_fault)
+    for kind in (-1, *CT):
+        for multi in (False, True):
+            for excess in (0.0, 0.2):
+                got = bool(fault(jnp.int32(kind), jnp.asarray(multi), jnp.float32(excess)))
+                if kind in (CT.STOPPED_TRACK, CT.ACTIVE_FRONT):
+                    want = True
+                elif kind == CT.ACTIVE_LATERAL:
+                    want = multi or excess > 0.0
+                else:
+                    want = False
+                assert got == want, (kind, multi, excess)
+
+
+# Straight two-lane road along +x: eastbound centre y = -1.75, westbound y = +1.75 (drawn the other way),
+# both 3.5 m wide; the road spans y in [-3.5, 3.5]. Ego box 4.6 x 2.0 m (half 2.3 x 1.0).
+_ROAD = _lines(np.array([[-50.0, -1.75], [0.0, -1.75], [50.0, -1.75]]), np.array([[50.0, 1.75], [-50.0, 1.75]]))
+_footprint = jax.jit(inf.lane_footprint)
+
+
+def _fp(x, y, yaw, lane_valid=(True, True)):
+    multi, excess = _footprint(_ego(x, y, yaw), LW, *_ROAD, jnp.asarray(lane_valid), jnp.array([3.5, 3.5]))
+    return bool(multi), float(excess)
+
+
+def test_lane_footprint_centred_in_a_lane():
+    assert _fp(0.0, -1.75, 0.0) == (False, 0.0)  # corners at |dy| = 1.0 <= 1.75
+    assert _fp(10.0, 1.75, np.pi) == (False, 0.0)  # westbound lane, heading west
+
+
+def test_lane_footprint_straddling_the_centre_line_is_multi_lane():
+    # Corners at y = +-1: each inside one lane, no lane holds all four; nothing off the road.
+    assert _fp(0.0, 0.0, 0.0) == (True, 0.0)
+
+
+def test_lane_footprint_outside_the_road_edge():
+    # Centre on the road edge y = -3.5: right corners at y = -4.5, 1 m beyond the eastbound lane's edge.
+    multi, excess = _fp(0.0, -3.5, 0.0)
+    assert multi and excess == pytest.approx(1.0, abs=1e-5)
+    # Yawed 0.5 rad in the eastbound lane: the farthest corner is 2.3 sin 0.5 + 1.0 cos 0.5 = 1.980 m
+    # from the centre line, 0.230 m past the road edge (the opposite corner is in the westbound lane).
+    multi, excess = _fp(0.0, -1.75, 0.5)
+    assert multi and excess == pytest.approx(2.3 * np.sin(0.5) + np.cos(0.5) - 1.75, abs=1e-4)
+    # At 0.3 rad it stays inside (1.635 m < 1.75 m).
+    assert _fp(0.0, -1.75, 0.3) == (False, 0.0)
+
+
+def test_lane_footprint_ignores_invalid_lanes():
+    # Only the westbound lane valid: a car centred in the eastbound lane is 2.5 m + 0.75 m outside it.
+    multi, excess = _fp(0.0, -1.75, 0.0, lane_valid=(False, True))
+    assert multi and excess == pytest.approx(abs(-2.75 - 1.75) - 1.75, abs=1e-5)
+
+
+def test_lane_footprint_without_any_lane_is_far_off_road():
+    # No valid lane: every corner is outside "every lane" -- reported as 1e3 m rather than inf.
+    assert _fp(0.0, -1.75, 0.0, lane_valid=(False, False)) == (True, 1e3)

@@ -19,11 +19,11 @@ import numpy as np
 from drivee2e_jax import hostbridge, testing
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.results import event_key
-from drivee2e_jax.metrics import abilities, finegrained
+from drivee2e_jax.metrics import abilities, finegrained, navsim, nuplan
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.bev import bev_label
-from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, shard_rollout_inputs
+from drivee2e_jax.rollout import ControlTiming, LogReplay, Rollout, balanced_chunk, shard_rollout_inputs
 from drivee2e_jax.sim import SimConfig, Simulator
 
 
@@ -160,10 +160,39 @@ def evaluate(
     per_scn = (compile_s + wall_s) / max(b, 1)
     reps = None if seeds is None else np.repeat(np.arange(len(seeds)), n_scn)
     rows, events = _rows_and_events(policy.name, meta, batch, results, stacked, sim.config, per_scn, limit_kmh, reps)
+    _add_closed_loop_scores(rows, stacked, batch, sim, run_batch, total, chunk)
     warnings = [*nonfinite_warning(_head(carry.nonfinite, b), policy.action_type),
                 *lane_free_warning(np.asarray(batch.map.lanes.valid), meta.scenario_id)]
     return EvalResult(rows=rows, events=events, logs=stacked, compile_s=compile_s, wall_s=wall_s,
                       steps=min(steps, total), warnings=warnings)
+
+
+def _add_closed_loop_scores(rows, logs, batch, sim: Simulator, run_batch, total: int, chunk: int) -> None:
+    """Under the ``nuplan`` / ``navsim`` presets, add that benchmark's score
+    and sub-metric columns to each row (``metrics.nuplan``, ``metrics.navsim``).
+
+    NAVSIM's human filter and its progress reference need the logged ego
+    driven through the same simulator: one more rollout of ``LogReplay``
+    (sensors off) on the same scenarios."""
+    preset = sim.config.score.name
+    if preset not in ("nuplan", "navsim"):
+        return
+    scn = jax.tree_util.tree_map(np.asarray, batch)
+    human = None
+    if preset == "navsim":
+        hsim = Simulator(dataclasses.replace(sim.config, sensors=sensors.SensorConfig()))
+        _, human = Rollout(hsim, LogReplay(), None, chunk=chunk).run(run_batch, jax.random.PRNGKey(0), max_steps=total)
+        human = _head(human, len(rows))
+    plan_dt = sim.config.controller.waypoint_dt
+    for i, row in enumerate(rows):
+        one = lambda tree, i=i: jax.tree_util.tree_map(lambda a: a[i], tree)  # noqa: E731
+        if preset == "nuplan":
+            cols = nuplan.episode_columns(one(logs), one(scn), sim.config.dt)
+        else:
+            log_i = one(logs)
+            cols = navsim.episode_columns(log_i, one(scn), sim.config.dt, human=one(human), plans=log_i.plan,
+                                          plan_dt=plan_dt)
+        row.update({k: round(float(v), 6) for k, v in cols.items()})
 
 
 #: What the simulator does with a non-finite action (``sim.Simulator.to_controls``).
@@ -320,6 +349,13 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
             "driving_score": float(res.driving_score[i]),
             "success": bool(res.success[i]),
             "status": ep.status_name(int(res.status[i])),
+            # Both collision views side by side (``ScoreConfig.collision_mode`` picks the headline above).
+            "driving_score_all": float(res.driving_score_all[i]),
+            "infraction_score_all": float(res.infraction_score_all[i]),
+            "success_all": bool(res.success_all[i]),
+            "driving_score_at_fault": float(res.driving_score_at_fault[i]),
+            "infraction_score_at_fault": float(res.infraction_score_at_fault[i]),
+            "success_at_fault": bool(res.success_at_fault[i]),
             "outside_route_lanes_pct": round(float(res.outside_lanes_pct[i]), 3),
             "outside_route_lanes_m": round(float(res.outside_lanes_m[i]), 3),
             "episode_s": round(float(res.episode_s[i]), 3),

@@ -626,7 +626,7 @@ def _frame_fns(sim, bev_sim, sensor_cfg) -> dict:
 
     def base(scenario, ctx, state, assets):
         t = state.ego.t
-        return {"agents": sim.agents(scenario, t), "signals": replay.signals_at(scenario.signals, t, scenario.dt_log)}
+        return {"agents": sim.agents(scenario, t, state.replace(ctx=ctx)), "signals": replay.signals_at(scenario.signals, t, scenario.dt_log)}
 
     def context(scenario, ctx, state, assets):
         seen = base(scenario, ctx, state, assets)

@@ -123,6 +123,9 @@ _PEN = {p.key: p for p in PENALTIES}
 
 ScoreFormula = Literal["lb20", "lb21"]
 
+#: ``ScoreConfig.collision_mode`` choices (``--collisions``); "all" is the paper's protocol.
+COLLISION_MODES = ("all", "at_fault")
+
 
 @dataclasses.dataclass(frozen=True)
 class ScoreConfig:
@@ -145,6 +148,13 @@ class ScoreConfig:
       collisions, red_light, stop_sign, outside_lanes, min_speed, in_route,
         blocked, route_timeout: each criterion on/off. A disabled criterion
         records nothing (as if absent from the criteria tree).
+      collision_mode: which collisions the headline DS / IS / success count
+        (``COLLISION_MODES``): "all" (every contact with a logged agent or
+        the layout: the paper's protocol) or "at_fault" (nuPlan's attribution,
+        ``infractions.at_fault``). Both views are always computed
+        (``metrics.episode.EpisodeResult``); this picks the headline.
+      vru_at_fault: a contact with a pedestrian or cyclist is always the
+        ego's fault (as V-Max scores it), whatever its nuPlan type.
     """
 
     name: str = "lb20"
@@ -164,8 +174,12 @@ class ScoreConfig:
     in_route: bool = True
     blocked: bool = True
     route_timeout: bool = True
+    collision_mode: str = "all"
+    vru_at_fault: bool = False
 
     def __post_init__(self):
+        if self.collision_mode not in COLLISION_MODES:
+            raise ValueError(f"unknown collision mode {self.collision_mode!r}; expected one of {', '.join(COLLISION_MODES)}")
         if self.formula not in ("lb20", "lb21"):
             raise ValueError(f"ScoreConfig.formula must be 'lb20' or 'lb21', got {self.formula!r}")
         if not 0.0 <= self.rc_threshold < 100.0:
@@ -506,7 +520,10 @@ def outcome_from_events(
 
 
 #: Scoring presets by name (``--preset``); ``paper`` is the default.
-SCORE_PRESETS = ("paper", "drivee2e", "lb20", "lb21", "b2d")
+SCORE_PRESETS = ("paper", "drivee2e", "lb20", "lb21", "b2d", "nuplan", "navsim")
+#: Presets whose headline is another benchmark's closed-loop score computed
+#: beside the leaderboard criteria (``metrics.nuplan``, ``metrics.navsim``).
+CLOSED_LOOP_SCORES = {"nuplan": "nuplan_score", "navsim": "epdms"}
 
 
 def score_preset(name: str) -> ScoreConfig:
@@ -522,12 +539,15 @@ def score_preset(name: str) -> ScoreConfig:
     includes cross traffic moving on its green, which would penalise the
     correct stop at a red light; the source's replayed actors carry no
     ``background`` role, so its checkpoints get no samples either (v = 100).
+    ``nuplan`` and ``navsim`` run the ``paper`` criteria (so RC / DS stay
+    comparable) and add nuPlan's closed-loop score (``metrics.nuplan``) or
+    NAVSIM's EPDMS (``metrics.navsim``) with every sub-metric as a column.
     The other names are ``ScoreConfig`` presets (``drivee2e`` = the source
     code's exact rules incl. its 12.1 s cap).
     """
-    if name == "paper":
+    if name in ("paper", "nuplan", "navsim"):
         return dataclasses.replace(
-            ScoreConfig.drivee2e(), name="paper", time_cap_s=None, red_light=True, outside_lanes=True, min_speed=False
+            ScoreConfig.drivee2e(), name=name, time_cap_s=None, red_light=True, outside_lanes=True, min_speed=False
         )
     if name not in SCORE_PRESETS:
         raise ValueError(f"unknown score preset {name!r}; expected one of {', '.join(SCORE_PRESETS)}")

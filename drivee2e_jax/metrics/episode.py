@@ -14,7 +14,7 @@ from flax import struct
 
 from drivee2e_jax.metrics import criteria as cr
 from drivee2e_jax.metrics.driving_score import INFRACTION_KEYS, RouteOutcome, ScoreConfig, route_score, status_name
-from drivee2e_jax.types import Category, CollisionClass, Route
+from drivee2e_jax.types import COLLISION_TYPE_NAMES, Category, CollisionClass, Route
 
 #: Default lane speed limit for the route-timeout budget, m/s (50 km/h).
 SPEED_LIMIT = 13.9
@@ -45,6 +45,9 @@ class EpisodeCarry:
       collisions_pedestrian, collisions_vehicle, collisions_layout, red_light:
         () int32 counted events.  collisions_two_wheeler: () int32 vehicle
         collisions with a cyclist / motorcycle (finer class, also in vehicle).
+      collisions_pedestrian_at_fault, collisions_vehicle_at_fault,
+      collisions_layout_at_fault: () int32 the counted collisions that were
+        the ego's fault (``infractions.at_fault``; layout always).
       invalid_action: () int32 steps whose action had to be repaired.
       done: () bool route ended (completed, deviated, blocked, timed out, cut).
       truncated: () bool ended by the episode cap / end of the log.
@@ -67,6 +70,9 @@ class EpisodeCarry:
     collisions_vehicle: jnp.ndarray
     collisions_layout: jnp.ndarray
     collisions_two_wheeler: jnp.ndarray
+    collisions_pedestrian_at_fault: jnp.ndarray
+    collisions_vehicle_at_fault: jnp.ndarray
+    collisions_layout_at_fault: jnp.ndarray
     red_light: jnp.ndarray
     invalid_action: jnp.ndarray
     done: jnp.ndarray
@@ -87,6 +93,9 @@ class StepEvents:
       collision: () bool a collision counted.  collision_class: () int32
       ``CollisionClass`` (-1 none).  collision_id: () int32 other track id
       (-1 static).  collision_category: () int32 ``Category`` (-1 static).
+      collision_type: () int32 ``infractions.CollisionType`` of an agent
+      contact (-1 none or static).  collision_at_fault: () bool the counted
+      collision was the ego's fault (a static one always).
       red_light: () bool.  red_light_index: () int32 stop line row.
       route_deviation, blocked, route_timeout, completed, truncated: () bool.
       invalid_action: () bool.
@@ -96,6 +105,8 @@ class StepEvents:
     collision_class: jnp.ndarray
     collision_id: jnp.ndarray
     collision_category: jnp.ndarray
+    collision_type: jnp.ndarray
+    collision_at_fault: jnp.ndarray
     red_light: jnp.ndarray
     red_light_index: jnp.ndarray
     route_deviation: jnp.ndarray
@@ -125,6 +136,9 @@ def init(route: Route, cfg: ScoreConfig, log_overlaps=0) -> EpisodeCarry:
         collisions_vehicle=i0,
         collisions_layout=i0,
         collisions_two_wheeler=i0,
+        collisions_pedestrian_at_fault=i0,
+        collisions_vehicle_at_fault=i0,
+        collisions_layout_at_fault=i0,
         red_light=i0,
         invalid_action=i0,
         done=b0,
@@ -169,6 +183,9 @@ def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt,
     two_wheeler = is_agent & (
         (facts.agent_hit_category == Category.CYCLIST) | (facts.agent_hit_category == Category.MOTORCYCLE)
     )
+    vru = (facts.agent_hit_category == Category.PEDESTRIAN) | (facts.agent_hit_category == Category.CYCLIST)
+    fault = jnp.where(is_agent, facts.at_fault | (cfg.vru_at_fault & vru), True)
+    ev_fault_cls = jnp.where(fault, ev_cls, -1)
     deviated = deviated & cfg.in_route
     is_blocked = is_blocked & cfg.blocked
     timed_out = timed_out & cfg.route_timeout
@@ -186,6 +203,9 @@ def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt,
         collisions_vehicle=carry.collisions_vehicle + (ev_cls == CollisionClass.VEHICLE),
         collisions_layout=carry.collisions_layout + (ev_cls == CollisionClass.LAYOUT),
         collisions_two_wheeler=carry.collisions_two_wheeler + ((ev_cls == CollisionClass.VEHICLE) & two_wheeler),
+        collisions_pedestrian_at_fault=carry.collisions_pedestrian_at_fault + (ev_fault_cls == CollisionClass.PEDESTRIAN),
+        collisions_vehicle_at_fault=carry.collisions_vehicle_at_fault + (ev_fault_cls == CollisionClass.VEHICLE),
+        collisions_layout_at_fault=carry.collisions_layout_at_fault + (ev_fault_cls == CollisionClass.LAYOUT),
         red_light=carry.red_light + red_event.astype(jnp.int32),
         invalid_action=carry.invalid_action + jnp.asarray(invalid, jnp.int32),
         done=carry.done | ends,
@@ -198,6 +218,8 @@ def update(carry: EpisodeCarry, route: Route, ego, facts, invalid, truncate, dt,
         collision_class=ev_cls.astype(jnp.int32),
         collision_id=jnp.where(is_agent, facts.agent_hit_id, -1).astype(jnp.int32),
         collision_category=jnp.where(is_agent, facts.agent_hit_category, -1).astype(jnp.int32),
+        collision_type=jnp.where(is_agent & (ev_cls >= 0), facts.collision_type, -1).astype(jnp.int32),
+        collision_at_fault=(ev_cls >= 0) & fault,
         red_light=red_event,
         red_light_index=jnp.where(red_event, facts.red_light_index, -1).astype(jnp.int32),
         route_deviation=deviated,
@@ -227,6 +249,12 @@ class EpisodeResult:
       min_speed_valid: (K,) bool the checkpoint closed with samples.
       log_overlaps: () int32 agents overlapping the ego in the log itself
         (``EpisodeCarry.log_overlaps``; not an infraction).
+      infraction_score_all, driving_score_all, success_all: the score with
+        every collision counted; ``*_at_fault``: with only the ego's at-fault
+        collisions (``ScoreConfig.collision_mode`` picks which one the
+        headline ``infraction_score`` / ``driving_score`` / ``success`` /
+        ``status`` are; ``infractions`` always holds every counted event).
+      collisions_at_fault: () int32 counted collisions that were at fault.
     """
 
     route_completion: jnp.ndarray
@@ -243,6 +271,13 @@ class EpisodeResult:
     min_speed_pct: jnp.ndarray
     min_speed_valid: jnp.ndarray
     log_overlaps: jnp.ndarray
+    infraction_score_all: jnp.ndarray
+    driving_score_all: jnp.ndarray
+    success_all: jnp.ndarray
+    infraction_score_at_fault: jnp.ndarray
+    driving_score_at_fault: jnp.ndarray
+    success_at_fault: jnp.ndarray
+    collisions_at_fault: jnp.ndarray
 
 
 def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResult:
@@ -264,14 +299,20 @@ def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResu
         route_timeout=carry.timeout.timed_out,
         tick_runtime=carry.truncated & ~carry.rc.completed,
     )
-    score = route_score(outcome, cfg)
+    score_all = route_score(outcome, cfg)
+    score_af = route_score(outcome.replace(
+        collisions_pedestrian=carry.collisions_pedestrian_at_fault,
+        collisions_vehicle=carry.collisions_vehicle_at_fault,
+        collisions_layout=carry.collisions_layout_at_fault,
+    ), cfg)
+    score = score_af if cfg.collision_mode == "at_fault" else score_all
     return EpisodeResult(
         route_completion=score.route_completion,
         infraction_score=score.infraction_penalty,
         driving_score=score.driving_score,
         success=score.success,
         status=score.status,
-        infractions=score.infractions,
+        infractions=score_all.infractions,
         outside_lanes_pct=jnp.where(cfg.outside_lanes, outcome.outside_lanes_pct, 0.0),
         outside_lanes_m=score.outside_lanes_m,
         collisions_two_wheeler=carry.collisions_two_wheeler,
@@ -280,6 +321,14 @@ def finalize(carry: EpisodeCarry, route: Route, cfg: ScoreConfig) -> EpisodeResu
         min_speed_pct=ms.values,
         min_speed_valid=ms.valid,
         log_overlaps=carry.log_overlaps,
+        infraction_score_all=score_all.infraction_penalty,
+        driving_score_all=score_all.driving_score,
+        success_all=score_all.success,
+        infraction_score_at_fault=score_af.infraction_penalty,
+        driving_score_at_fault=score_af.driving_score,
+        success_at_fault=score_af.success,
+        collisions_at_fault=(carry.collisions_pedestrian_at_fault + carry.collisions_vehicle_at_fault
+                             + carry.collisions_layout_at_fault),
     )
 
 
@@ -291,6 +340,7 @@ def counts_dict(res: EpisodeResult) -> dict[str, np.ndarray]:
     out["invalid_action"] = np.asarray(res.invalid_action)
     out["collisions_cyclist_motorcycle"] = np.asarray(res.collisions_two_wheeler)
     out["log_overlaps"] = np.asarray(res.log_overlaps)
+    out["collisions_at_fault"] = np.asarray(res.collisions_at_fault)
     return out
 
 
@@ -302,7 +352,8 @@ def extract_events(log) -> list[dict]:
 
     Each record has ``type`` (an infraction key), ``t`` (s), ``x``, ``y`` (m)
     and type-specific fields (``other_track_id``, ``other_category``,
-    ``stop_line``).
+    ``collision_type`` (``infractions.COLLISION_TYPE_NAMES`` or "static"),
+    ``at_fault``, ``stop_line``).
     """
 
     e = log.events
@@ -314,6 +365,9 @@ def extract_events(log) -> list[dict]:
             if e.collision_id[i] >= 0:
                 rec["other_track_id"] = int(e.collision_id[i])
                 rec["other_category"] = Category(int(e.collision_category[i])).name.lower()
+            kind = int(e.collision_type[i])
+            rec["collision_type"] = COLLISION_TYPE_NAMES[kind] if kind >= 0 else "static"
+            rec["at_fault"] = bool(e.collision_at_fault[i])
             out.append(rec)
         if e.red_light[i]:
             out.append({"type": "red_light", **base, "stop_line": int(e.red_light_index[i])})

@@ -361,7 +361,7 @@ class FineTuner:
         state = state.replace(ego=jax.tree_util.tree_map(straight_through, state.ego, ego))
         if cfg.obs_gradient:  # the observation of the differentiable pose (same value)
             new_obs = sim.observe(scenario, state)
-        terms = step_losses(scenario, c.sim.ego, state.ego, sim.agents(scenario, state.ego.t), state.ctx.ego_lw,
+        terms = step_losses(scenario, c.sim.ego, state.ego, sim.agents(scenario, state.ego.t, state), state.ctx.ego_lw,
                             state.ctx.stop_arc, cfg)
         terms["imitation"] = base.waypoint_l1(wp, target)
         terms = {k: jnp.where(active, v, 0.0) for k, v in terms.items()}

@@ -1,0 +1,577 @@
+"""nuPlan's closed-loop score (CLS): the ``--preset nuplan`` scoring.
+
+What: the eight per-scenario metrics nuPlan's closed-loop challenges score
+(``nuplan/planning/script/config/common/simulation_metric/
+simulation_closed_loop_nonreactive_agents.yaml``) and their combination by
+``WeightedAverageMetricAggregator._compute_scenario_score``
+(``nuplan/planning/metrics/aggregator/weighted_average_metric_aggregator.py``,
+weights in ``nuplan/planning/script/config/simulation/metric_aggregator/
+closed_loop_nonreactive_agents_weighted_average.yaml``)::
+
+    score = (no_ego_at_fault_collisions * drivable_area_compliance
+             * ego_is_making_progress * driving_direction_compliance)
+            * (5 progress + 5 ttc + 4 speed_limit + 2 comfortable) / 16
+
+Why two halves: the parts that need the world at every tick (time to
+collision against the replayed agents, travel against a lane's direction)
+are a cheap pure-JAX ``tick`` that runs inside the batched rollout and lands
+in ``StepFacts.nuplan``; everything else is a host-side (numpy) function of
+one episode's stacked ``StepLog`` (``episode_columns``), like the other
+fine-grained columns.
+
+Adaptations from nuPlan (all sources are motional/nuplan-devkit):
+
+======================================  ==========================================================
+nuPlan                                  here
+======================================  ==========================================================
+map polygons (lanes, lane connectors,   lanes are centrelines +- width/2; the drivable area is the
+roadblocks, DRIVABLE_AREA layer)        union of the lanes near the route (``drivable_excess_m``
+                                        from ``infractions``); a junction is a CONNECTOR lane
+20 Hz history, us timestamps            the sim's steps (10 Hz by default), ``StepLog.t`` in s;
+                                        only ``active`` steps are samples
+expert route = roadblocks the expert    ``scenario.route`` (the logged ego path at 1 m): progress
+drives through; progress per roadblock  = arc of the foot point on that polyline (ego vs logged ego
+baseline (``PerFrameProgress...``)      over the same duration), not summed per roadblock
+TTC: ``observation.tracked_objects``    the <= 16 nearest replayed agents (``near``); static map
+incl. static objects                    obstacles are not projected (they are scored as layout
+                                        contacts only)
+TTC: tracks collided earlier are        agents overlapping the ego *now* are dropped (``tick`` has
+excluded at later ticks                 no memory); a new at-fault contact sets that tick's TTC to
+                                        0 on the host, as nuPlan
+TTC lateral tracks while "not in        ``wide_view`` argument: the caller passes
+common/connected route objs" or in an   ``multi_lane | on a connector``
+intersection
+driving direction: progress along the   ``oncoming_m``: travel against the nearest lane holding
+baseline of the lane/connector the ego  the ego centre (within width/2) that runs against the
+centre is in, summed over 1 s windows   heading, only when no lane running its way holds it; the
+                                        windows sum these (travel with the lane never offsets)
+collision classes VRU (pedestrian,      PEDESTRIAN, CYCLIST -> VRU; every other ``Category`` ->
+bicycle), vehicle, object               vehicle; layout contacts (``layout_hit`` rising edges) ->
+                                        object, always at fault
+comfort: accelerations of the ego       lon acc = ``StepLog.accel``, lat acc = speed * yaw rate,
+state (``center_acceleration_2d``,      magnitude = hypot of the two (the kinematic centre-point
+rear-axle magnitude)                    accelerations; nuPlan's own bicycle model leaves the
+                                        rear-axle lateral term 0)
+comfort on < 3-5 samples: raises        a signal too short for its Savitzky-Golay fit is not
+                                        checked (counts as within bounds)
+======================================  ==========================================================
+
+Every column is a float in [0, 1] and never None (nuPlan's aggregator skips
+None columns and renormalises the weights; the only "skip" case of the
+progress metric, no expert route, scores 1.0 in nuPlan and here too).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from scipy.signal import savgol_filter
+
+from drivee2e_jax import geometry
+from drivee2e_jax.dynamics import BicycleParams
+from drivee2e_jax.replay import AgentStates
+from drivee2e_jax.types import Category, EgoState
+
+Array = jnp.ndarray
+
+# --------------------------------------------------------------------------
+# Constants (plain Python floats: no JAX backend at import)
+# --------------------------------------------------------------------------
+
+#: TTC projection step and horizon, s (``time_to_collision_within_bound_statistics.yaml``).
+TTC_STEP_S = 0.1
+TTC_HORIZON_S = 3.0
+#: Number of projection steps: ``len(np.arange(0.1, 3.0, 0.1))`` = 29 (0.1 ... 2.9 s),
+#: the loop of ``_compute_time_to_collision_at_timestamp``.
+TTC_STEPS = 29
+#: TTC must be strictly above this, s (``least_min_ttc``).
+TTC_LEAST_MIN_S = 0.95
+#: Ego at or below this speed is "stopped": TTC not evaluated (``compute_time_to_collision``), m/s.
+TTC_STOPPED_SPEED = 5e-3
+#: ``is_agent_ahead`` / ``is_agent_behind`` angle tolerances (idm/utils.py), rad.
+AHEAD_ANGLE = math.radians(30.0)
+BEHIND_ANGLE = math.radians(150.0)
+#: nuPlan's ego reference for ahead/behind is the rear axle: centre - wheelbase / 2.
+DEFAULT_WHEELBASE = BicycleParams.wheelbase
+
+#: no_ego_at_fault_collisions thresholds (VRU, vehicle, object).
+COLLISION_THRESHOLDS = (0, 0, 1)
+#: Categories counted as VRUs (nuPlan ``VRU_types``: PEDESTRIAN, BICYCLE).
+VRU_CATEGORIES = (int(Category.PEDESTRIAN), int(Category.CYCLIST))
+#: drivable_area_compliance ``max_violation_threshold``, m.
+DRIVABLE_MAX_VIOLATION_M = 0.3
+#: driving_direction_compliance thresholds (m) and window (s).
+DIRECTION_COMPLIANCE_M = 2.0
+DIRECTION_VIOLATION_M = 6.0
+DIRECTION_HORIZON_S = 1.0
+#: ego_progress_along_expert_route ``score_progress_threshold``, m.
+PROGRESS_THRESHOLD_M = 2.0
+#: ego_is_making_progress ``min_progress_threshold`` (ratio).
+MIN_PROGRESS_RATIO = 0.2
+#: speed_limit_compliance ``max_overspeed_value_threshold``, m/s.
+MAX_OVERSPEED_MPS = 2.23
+#: Comfort bounds (strict), from the low_level ego_*_statistics.yaml configs.
+LON_ACC_BOUNDS = (-4.05, 2.40)  # m/s^2
+MAX_ABS_LAT_ACC = 4.89  # m/s^2
+MAX_ABS_JERK = 8.37  # m/s^3
+MAX_ABS_LON_JERK = 4.13  # m/s^3
+MAX_ABS_YAW_ACC = 1.93  # rad/s^2
+MAX_ABS_YAW_RATE = 0.95  # rad/s
+#: Weighted-average weights (closed_loop_nonreactive_agents_weighted_average.yaml).
+WEIGHTS = {
+    "nuplan_ego_progress_along_expert_route": 5.0,
+    "nuplan_time_to_collision_within_bound": 5.0,
+    "nuplan_speed_limit_compliance": 4.0,
+    "nuplan_ego_is_comfortable": 2.0,
+}
+MULTIPLIERS = (
+    "nuplan_no_ego_at_fault_collisions",
+    "nuplan_drivable_area_compliance",
+    "nuplan_ego_is_making_progress",
+    "nuplan_driving_direction_compliance",
+)
+#: Per-episode columns of ``episode_columns``, in order.
+COLUMNS = (*MULTIPLIERS, *WEIGHTS, "nuplan_score")
+
+
+# --------------------------------------------------------------------------
+# Per tick (JAX)
+# --------------------------------------------------------------------------
+
+
+@struct.dataclass
+class NuplanTick:
+    """nuPlan facts of one tick, one scenario (all scalars).
+
+    Attributes:
+      ttc_s:      float32 time to collision, s (a multiple of 0.1 in [0.1, 2.9];
+                  inf if none within the horizon, or the ego is stopped).
+      oncoming_m: float32 ego travel this tick against the direction of the
+                  lane it is on, m (>= 0).
+    """
+
+    ttc_s: Array
+    oncoming_m: Array
+
+
+def _heading_vec(yaw: Array) -> Array:
+    """(..., 2) unit vector of heading ``yaw`` (...,)."""
+    return jnp.stack([jnp.cos(yaw), jnp.sin(yaw)], axis=-1)
+
+
+def ttc_relevant(ego: EgoState, xy: Array, valid: Array, wide_view: Array, wheelbase: float) -> Array:
+    """(K,) bool: which tracks nuPlan projects for TTC.
+
+    ``extract_tracks_info_excluding_collided_tracks``
+    (nuplan/planning/metrics/evaluation_metrics/common/time_to_collision_within_bound.py):
+    a track counts if it is ahead of the ego's rear axle (relative angle
+    < 30 deg, ``is_agent_ahead``), or, while the ego is between lanes / off
+    the route objects / in an intersection (``wide_view``), if it is not
+    behind (angle > 150 deg, ``is_agent_behind``). A track exactly at the
+    rear axle has an undefined angle (NaN in nuPlan): neither.
+
+    Args:
+      ego: EgoState (centre xy, yaw).  xy: (K, 2) track centres, m.
+      valid: (K,) bool.  wide_view: () bool.  wheelbase: m.
+    """
+    h = _heading_vec(ego.yaw)
+    rel = xy - (ego.xy - 0.5 * wheelbase * h)
+    n = jnp.linalg.norm(rel, axis=-1)
+    cos = jnp.clip((rel @ h) / jnp.where(n > 0, n, 1.0), -1.0, 1.0)
+    angle = jnp.where(n > 0, jnp.arccos(cos), jnp.nan)
+    ahead = angle < AHEAD_ANGLE
+    behind = angle > BEHIND_ANGLE
+    return valid & (ahead | (wide_view & ~behind & (n > 0)))
+
+
+def time_to_collision(ego: EgoState, ego_lw: Array, xy: Array, yaw: Array, speed: Array, lw: Array,
+                      relevant: Array) -> Array:
+    """() float32 nuPlan TTC against K tracks: earliest projection time, s, or inf.
+
+    ``_compute_time_to_collision_at_timestamp`` (time_to_collision_within_bound.py):
+    the ego and every track move at constant speed along their heading
+    (``_get_ego_tracks_displacement_info``); at t = 0.1, 0.2, ..., 2.9 s the
+    boxes are tested and the first overlap gives the TTC. nuPlan's
+    elongated-box pre-filter (``_get_relevant_tracks``) is only a speed-up
+    (an elongated box covers every projected box); here a circle test on
+    the closest approach of the centres over the horizon masks the tracks
+    that cannot touch, and the box tests run only if one is left.
+
+    Args:
+      ego: EgoState (xy, yaw, speed).  ego_lw: (2,) length, width, m.
+      xy: (K, 2) m.  yaw: (K,) rad.  speed: (K,) m/s.  lw: (K, 2) m.
+      relevant: (K,) bool (``ttc_relevant`` minus tracks already touching).
+    """
+    ev = ego.speed * _heading_vec(ego.yaw)  # (2,)
+    av = speed[:, None] * _heading_vec(yaw)  # (K, 2)
+    dp, dv = xy - ego.xy, av - ev
+    t_lo, t_hi = TTC_STEP_S, TTC_STEP_S * TTC_STEPS
+    t_star = jnp.clip(-jnp.sum(dp * dv, -1) / jnp.maximum(jnp.sum(dv * dv, -1), 1e-12), t_lo, t_hi)
+    closest = jnp.linalg.norm(dp + dv * t_star[:, None], axis=-1)
+    reach = 0.5 * (jnp.hypot(ego_lw[0], ego_lw[1]) + jnp.hypot(lw[:, 0], lw[:, 1]))
+    cand = relevant & (closest <= reach)
+    steps = TTC_STEP_S * jnp.arange(1, TTC_STEPS + 1, dtype=jnp.float32)  # (S,)
+
+    def boxes(_):
+        ego_xy = ego.xy + steps[:, None] * ev  # (S, 2)
+        ag_xy = xy[None] + steps[:, None, None] * av[None]  # (S, K, 2)
+        per_track = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))
+        hit = jax.vmap(per_track, in_axes=(0, None, None, 0, None, None))(ego_xy, ego.yaw, ego_lw, ag_xy, yaw, lw)
+        hit_s = (hit & cand[None]).any(-1)
+        return jnp.where(hit_s.any(), steps[jnp.argmax(hit_s)], jnp.inf)
+
+    ttc = jax.lax.cond(cand.any(), boxes, lambda _: jnp.float32(jnp.inf), None)
+    return jnp.where(ego.speed > TTC_STOPPED_SPEED, ttc, jnp.inf).astype(jnp.float32)
+
+
+def oncoming_travel(prev_xy: Array, ego: EgoState, lane_xy: Array, lane_pv: Array, lane_ok: Array,
+                    lane_w: Array) -> Array:
+    """() float32 ego travel this tick against its lane's direction, m (>= 0).
+
+    ``DrivingDirectionComplianceStatistics._extract_metric``
+    (driving_direction_compliance.py) measures the ego centre's progress
+    along the baseline of the lane it is in; negative progress is driving
+    against the lane. Here: a lane holds the ego if its centre is within
+    width / 2 of the centreline; if a lane running the ego's way (tangent .
+    heading >= 0) holds it, it is not oncoming (0). Otherwise the nearest
+    holding lane gives ``max(0, -(xy - prev_xy) . tangent)``.
+
+    Args:
+      prev_xy: (2,) ego centre before the step, m.  ego: EgoState after it.
+      lane_xy: (M, P, 2) centrelines.  lane_pv: (M, P) bool.  lane_ok: (M,) bool.
+      lane_w: (M,) width, m.
+    """
+    dist, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lane_xy, lane_pv)
+    holds = lane_ok & (dist <= 0.5 * lane_w)
+    tangent = _heading_vec(heading)  # (M, 2)
+    with_ego = tangent @ _heading_vec(ego.yaw) >= 0.0
+    against = holds & ~with_ego
+    j = jnp.argmin(jnp.where(against, dist, jnp.inf))
+    back = -jnp.dot(ego.xy - prev_xy, tangent[j])
+    on_wrong = against.any() & ~(holds & with_ego).any()
+    return jnp.where(on_wrong, jnp.maximum(back, 0.0), 0.0).astype(jnp.float32)
+
+
+def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agent_size: Array,
+         near: Array, near_ok: Array, lane_xy: Array, lane_pv: Array, lane_ok: Array, lane_w: Array,
+         *, wide_view: Array | bool = False, wheelbase: float = DEFAULT_WHEELBASE) -> NuplanTick:
+    """nuPlan facts of one tick (pure JAX, one scenario).
+
+    Args:
+      prev_xy: (2,) ego centre before the step, m.
+      ego: EgoState after the step (centre xy, yaw, speed >= 0).
+      ego_lw: (2,) ego length, width, m.
+      agents: AgentStates (A,) at the tick's time (the ego's row invalid).
+      agent_size: (A, 3) length, width, height, m.
+      near, near_ok: (K,) rows of the nearest agents (``infractions.nearest_rows``)
+        and their validity; K <= 16.
+      lane_xy, lane_pv, lane_ok, lane_w: (M, P, 2), (M, P), (M,), (M,) lanes
+        near the ego (centrelines in driving direction, widths in m).
+      wide_view: () bool, the ego is in several lanes / off the lanes / in a
+        junction: lateral tracks count for TTC (``ttc_relevant``).
+      wheelbase: m, for the rear axle (``dynamics.BicycleParams.wheelbase``).
+
+    Returns:
+      NuplanTick.
+    """
+    xy, yaw, lw = agents.xy[near], agents.yaw[near], agent_size[near, :2]
+    speed = jnp.linalg.norm(agents.vel[near], axis=-1)
+    ok = near_ok & agents.valid[near]
+    touching = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))(ego.xy, ego.yaw, ego_lw,
+                                                                                     xy, yaw, lw)
+    relevant = ttc_relevant(ego, xy, ok, jnp.asarray(wide_view), wheelbase) & ~touching
+    return NuplanTick(
+        ttc_s=time_to_collision(ego, ego_lw, xy, yaw, speed, lw, relevant),
+        oncoming_m=oncoming_travel(prev_xy, ego, lane_xy, lane_pv, lane_ok, lane_w),
+    )
+
+
+# --------------------------------------------------------------------------
+# Per episode (host, numpy)
+# --------------------------------------------------------------------------
+
+
+def collision_counts(agent_hit, agent_id, agent_category, at_fault, layout_hit) -> tuple[int, int, int]:
+    """At-fault collisions (VRU, vehicle, object) over the active ticks.
+
+    ``find_new_collisions`` + ``classify_at_fault_collisions``
+    (no_ego_at_fault_collisions.py): each track is counted once, at its
+    first contact tick, if that contact is at fault; ``get_fault_type_statistics``
+    (utils/collision_utils.py) groups by type. Layout contacts: one per
+    rising edge of ``layout_hit``, always at fault, as objects.
+
+    Args: (n,) arrays of the active ticks (bool, int, int, bool, bool).
+    """
+    seen: set[int] = set()
+    vru = veh = 0
+    for hit, tid, cat, fault in zip(agent_hit, agent_id, agent_category, at_fault, strict=True):
+        if not hit or int(tid) in seen:
+            continue
+        seen.add(int(tid))
+        if fault:
+            if int(cat) in VRU_CATEGORIES:
+                vru += 1
+            else:
+                veh += 1
+    lay = np.asarray(layout_hit, dtype=bool)
+    obj = int(np.sum(lay & ~np.concatenate([[False], lay[:-1]])))
+    return vru, veh, obj
+
+
+def collision_score(vru: int, veh: int, obj: int) -> float:
+    """``EgoAtFaultCollisionStatistics.compute_score``: 1 without at-fault
+    collisions, else the product over types of max(0, 1 - n / (threshold + 1))."""
+    if vru + veh + obj == 0:
+        return 1.0
+    return float(np.prod([max(0.0, 1.0 - n / (thr + 1)) for n, thr in zip((vru, veh, obj), COLLISION_THRESHOLDS,
+                                                                          strict=True)]))
+
+
+def _first_fault_ticks(agent_hit, agent_id, at_fault, layout_hit) -> np.ndarray:
+    """(n,) bool: ticks with a NEW at-fault collision (nuPlan's
+    ``timestamps_at_fault_collisions``; their TTC is 0)."""
+    out = np.zeros(len(agent_hit), dtype=bool)
+    seen: set[int] = set()
+    for i, (hit, tid, fault) in enumerate(zip(agent_hit, agent_id, at_fault, strict=True)):
+        if hit and int(tid) not in seen:
+            seen.add(int(tid))
+            out[i] = bool(fault)
+    lay = np.asarray(layout_hit, dtype=bool)
+    return out | (lay & ~np.concatenate([[False], lay[:-1]]))
+
+
+def ttc_score(ttc_s, speed, new_fault) -> float:
+    """``TimeToCollisionStatistics.compute``: 1 iff every sample has
+    0.95 < TTC; TTC is inf while the ego is stopped and 0 at a new at-fault
+    collision (time_to_collision_within_bound.py)."""
+    ttc = np.where(np.asarray(speed) > TTC_STOPPED_SPEED, np.asarray(ttc_s, dtype=np.float64), np.inf)
+    ttc = np.where(new_fault, 0.0, ttc)
+    return float(np.all(TTC_LEAST_MIN_S < ttc))
+
+
+def drivable_score(drivable_excess_m) -> float:
+    """``DrivableAreaComplianceStatistics``: 0 if a corner ever lies
+    >= 0.3 m outside the drivable area (``is_corner_far_from_drivable_area``)."""
+    e = np.asarray(drivable_excess_m, dtype=np.float64)
+    return 0.0 if e.size and np.max(e) >= DRIVABLE_MAX_VIOLATION_M else 1.0
+
+
+def _n_horizon(t) -> int:
+    """``int(time_horizon / mean dt)`` (driving_direction_compliance.py), robust
+    to float rounding of the step."""
+    t = np.asarray(t, dtype=np.float64)
+    if len(t) < 2:
+        return 0
+    return int(round(DIRECTION_HORIZON_S / float(np.mean(np.diff(t))), 6))
+
+
+def direction_score(oncoming_m, t) -> float:
+    """``DrivingDirectionComplianceStatistics.compute``: the largest travel
+    against the lanes over any window of the last n_horizon + 1 samples:
+    < 2 m -> 1, < 6 m -> 0.5, else 0."""
+    x = np.asarray(oncoming_m, dtype=np.float64)
+    if x.size == 0:
+        return 1.0
+    n = _n_horizon(t)
+    c = np.concatenate([[0.0], np.cumsum(x)])
+    i = np.arange(len(x))
+    worst = float(np.max(c[i + 1] - c[np.maximum(0, i - n)]))
+    if worst < DIRECTION_COMPLIANCE_M:
+        return 1.0
+    return 0.5 if worst < DIRECTION_VIOLATION_M else 0.0
+
+
+def route_arc(points, route_xy, route_valid) -> np.ndarray:
+    """(N,) arc length, m, of each point's foot on the route polyline (nearest segment)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    r = np.asarray(route_xy, dtype=np.float64)[np.asarray(route_valid, dtype=bool)]
+    if len(r) == 1:
+        return np.zeros(len(p))
+    a, d = r[:-1], np.diff(r, axis=0)  # (S, 2)
+    seg = np.linalg.norm(d, axis=-1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    rel = p[:, None, :] - a[None]
+    u = np.clip(np.sum(rel * d, -1) / np.maximum(seg**2, 1e-12), 0.0, 1.0)  # (N, S)
+    dist = np.linalg.norm(rel - u[..., None] * d, axis=-1)
+    j = np.argmin(dist, axis=1)
+    k = np.arange(len(p))
+    return cum[j] + u[k, j] * seg[j]
+
+
+def progress_ratio(ego_progress: float, expert_progress: float) -> float:
+    """``EgoProgressAlongExpertRouteStatistics.compute``: 0 below -2 m, else
+    min(1, max(ego, 2) / max(expert, 2))."""
+    if ego_progress < -PROGRESS_THRESHOLD_M:
+        return 0.0
+    return min(1.0, max(ego_progress, PROGRESS_THRESHOLD_M) / max(expert_progress, PROGRESS_THRESHOLD_M))
+
+
+def speed_limit_score(speed, speed_limit, t) -> float:
+    """``SpeedLimitComplianceStatistics._compute_violation_metric_score``
+    (speed_limit_compliance.py): max(0, 1 - sum(overspeed) * mean dt /
+    (2.23 m/s * (t_last - t_first))); 1 for a zero duration. Ticks without a
+    positive speed limit have no violation (``_get_speed_limit_violation``)."""
+    t = np.asarray(t, dtype=np.float64)
+    lim = np.asarray(speed_limit, dtype=np.float64)
+    over = np.where(np.isfinite(lim) & (lim > 0), np.maximum(np.asarray(speed, dtype=np.float64) - lim, 0.0), 0.0)
+    if len(t) < 2 or t[-1] - t[0] <= 0:
+        return 1.0
+    loss = over.sum() * float(np.mean(np.diff(t))) / (max(MAX_OVERSPEED_MPS, 1e-3) * (t[-1] - t[0]))
+    return float(max(0.0, 1.0 - loss))
+
+
+def _sg(x: np.ndarray, window: int, poly: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray | None:
+    """nuPlan's Savitzky-Golay call (window clipped to the length; None if too short)."""
+    w = min(window, len(x))
+    if not poly < w:
+        return None
+    return np.round(savgol_filter(x, window_length=w, polyorder=poly, deriv=deriv, delta=delta), 8)
+
+
+def comfort_signals(accel, lat_accel, yaw, t) -> dict[str, np.ndarray | None]:
+    """nuPlan's six comfort signals (nuplan/planning/metrics/utils/state_extractors.py).
+
+    * ``extract_ego_acceleration``: SG window min(8, n), order 2 (no derivative).
+    * ``extract_ego_jerk``: SG first derivative, window min(15, n), order 2, of
+      the smoothed acceleration (``approximate_derivatives``, spacing = mean dt).
+    * ``extract_ego_yaw_rate``: SG derivative of the ``phase_unwrap``-ped
+      heading; ``approximate_derivatives``'s default window 5 (the 15 passed
+      to ``extract_ego_yaw_rate`` is never forwarded), order 2 for the rate,
+      order 3 + second derivative for the yaw acceleration
+      (``EgoYawAccelerationStatistics``).
+    Every signal is rounded to 8 decimals as nuPlan. None: too short to fit.
+    The acceleration window 8 is even: scipy (nuPlan pins 1.9.1) then
+    evaluates each interior fit half a sample late, while the ``interp`` ends
+    are unshifted, so even a steady ramp gets a kinked smoothed acceleration
+    and a non-constant jerk; kept as nuPlan computes it.
+
+    Args: (n,) lon acc m/s^2, lat acc m/s^2, heading rad, time s.
+    """
+    a = np.asarray(accel, dtype=np.float64)
+    la = np.asarray(lat_accel, dtype=np.float64)
+    h = np.asarray(yaw, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    dt = float(np.mean(np.diff(t))) if len(t) > 1 else 1.0
+    adj = np.zeros_like(h)
+    adj[1:] = np.cumsum(np.round(np.diff(h) / (2.0 * np.pi)))
+    h = h - 2.0 * np.pi * adj
+    lon = _sg(a, 8, 2)
+    mag = _sg(np.hypot(a, la), 8, 2)
+    return {
+        "lon_acc": lon,
+        "lat_acc": _sg(la, 8, 2),
+        "jerk": None if mag is None else _sg(mag, 15, 2, 1, dt),
+        "lon_jerk": None if lon is None else _sg(lon, 15, 2, 1, dt),
+        "yaw_acc": _sg(h, 5, 3, 2, dt),
+        "yaw_rate": _sg(h, 5, 2, 1, dt),
+    }
+
+
+def comfort_score(accel, lat_accel, yaw, t) -> float:
+    """``EgoIsComfortableStatistics``: 1 iff all six signals stay strictly
+    inside their bounds (``WithinBoundMetricBase._compute_within_bound``)."""
+    s = comfort_signals(accel, lat_accel, yaw, t)
+    bounds = {
+        "lon_acc": LON_ACC_BOUNDS,
+        "lat_acc": (-MAX_ABS_LAT_ACC, MAX_ABS_LAT_ACC),
+        "jerk": (-MAX_ABS_JERK, MAX_ABS_JERK),
+        "lon_jerk": (-MAX_ABS_LON_JERK, MAX_ABS_LON_JERK),
+        "yaw_acc": (-MAX_ABS_YAW_ACC, MAX_ABS_YAW_ACC),
+        "yaw_rate": (-MAX_ABS_YAW_RATE, MAX_ABS_YAW_RATE),
+    }
+    ok = all(s[k] is None or bool(np.all((s[k] > lo) & (s[k] < hi))) for k, (lo, hi) in bounds.items())
+    return float(ok)
+
+
+def combine(columns: dict[str, float]) -> float:
+    """``WeightedAverageMetricAggregator._compute_scenario_score``: product of
+    the multiplier metrics times the weighted mean of the others (None
+    columns are skipped and the weights renormalised; 0 if none is left)."""
+    factor = float(np.prod([columns[k] for k in MULTIPLIERS if columns.get(k) is not None]))
+    pairs = [(w, columns[k]) for k, w in WEIGHTS.items() if columns.get(k) is not None]
+    total = sum(w for w, _ in pairs)
+    return factor * (sum(w * v for w, v in pairs) / total if total else 0.0)
+
+
+def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
+    """nuPlan's per-scenario metrics and CLS of ONE episode (host side).
+
+    Args:
+      log: a ``sim.StepLog`` with numpy (T, ...) leaves; ``log.facts`` carries
+        agent_hit, agent_hit_id, agent_hit_category, at_fault, layout_hit,
+        drivable_excess_m, speed_limit and ``nuplan`` (NuplanTick, (T,) leaves).
+      scenario: an unbatched numpy ``types.Scenario``.
+      dt: simulation step, s (used only when fewer than 2 steps are active).
+
+    Returns:
+      {column: value in [0, 1]} for every name in ``COLUMNS``.
+    """
+    act = np.asarray(log.active, dtype=bool)
+    f = log.facts
+    if getattr(f, "nuplan", None) is None:
+        raise ValueError("nuplan.episode_columns: log.facts.nuplan is None (run the rollout with the nuplan preset)")
+    sel = lambda x: np.asarray(x)[act]  # noqa: E731 - active rows
+    t, speed = sel(log.t).astype(np.float64), sel(log.speed).astype(np.float64)
+    hit, tid, cat = sel(f.agent_hit).astype(bool), sel(f.agent_hit_id), sel(f.agent_hit_category)
+    fault, lay = sel(f.at_fault).astype(bool), sel(f.layout_hit).astype(bool)
+
+    # Progress along the route: ego vs logged ego from t = 0 over the same duration.
+    tr = scenario.tracks
+    e = int(scenario.ego_index)
+    dt_log = float(scenario.dt_log)
+    n_log = int(scenario.num_steps)
+    route_valid = np.asarray(scenario.route.valid, dtype=bool)
+    if not route_valid.any():
+        ratio = 1.0  # nuPlan: no expert route -> ratio 1.0
+    else:
+        t_end = float(t[-1]) if len(t) else 0.0
+        k = int(np.clip(round(t_end / dt_log), 0, max(n_log - 1, 0)))
+        log_valid = np.flatnonzero(np.asarray(tr.valid[e, : k + 1], dtype=bool))
+        k = int(log_valid[-1]) if len(log_valid) else 0
+        start = np.asarray(tr.xy[e, 0], dtype=np.float64)
+        ego_end = np.asarray(log.xy, dtype=np.float64)[act][-1] if len(t) else start
+        arcs = route_arc(np.stack([start, ego_end, np.asarray(tr.xy[e, k], dtype=np.float64)]),
+                         scenario.route.xy, route_valid)
+        ratio = progress_ratio(float(arcs[1] - arcs[0]), float(arcs[2] - arcs[0]))
+
+    times = t if len(t) > 1 else np.arange(max(len(t), 1)) * dt
+    cols = {
+        "nuplan_no_ego_at_fault_collisions": collision_score(*collision_counts(hit, tid, cat, fault, lay)),
+        "nuplan_drivable_area_compliance": drivable_score(sel(f.drivable_excess_m)),
+        "nuplan_ego_is_making_progress": float(ratio >= MIN_PROGRESS_RATIO),
+        "nuplan_driving_direction_compliance": direction_score(sel(f.nuplan.oncoming_m), times),
+        "nuplan_ego_progress_along_expert_route": float(ratio),
+        "nuplan_time_to_collision_within_bound": ttc_score(sel(f.nuplan.ttc_s), speed,
+                                                           _first_fault_ticks(hit, tid, fault, lay)),
+        "nuplan_speed_limit_compliance": speed_limit_score(speed, sel(f.speed_limit), t),
+        "nuplan_ego_is_comfortable": comfort_score(sel(log.accel), speed * sel(log.yaw_rate), sel(log.yaw), times),
+    }
+    cols["nuplan_score"] = combine(cols)
+    return cols
+
+
+__all__ = [
+    "COLUMNS",
+    "NuplanTick",
+    "collision_counts",
+    "collision_score",
+    "combine",
+    "comfort_score",
+    "comfort_signals",
+    "direction_score",
+    "drivable_score",
+    "episode_columns",
+    "oncoming_travel",
+    "progress_ratio",
+    "route_arc",
+    "speed_limit_score",
+    "tick",
+    "time_to_collision",
+    "ttc_relevant",
+    "ttc_score",
+]

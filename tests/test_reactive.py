@@ -1,0 +1,186 @@
+"""reactive.py: IDM agents along their logged paths (``--agents idm``).
+
+Expected values follow the IDM of Waymax ``waymax/agents/waypoint_following_agent.py``
+``IDMRoutePolicy._get_accel`` (s0, T, a, b, delta) and nuPlan
+``nuplan/planning/simulation/observation/idm/idm_policy.py`` ``IDMPolicy.idm_model``:
+at equilibrium (a = 0, v = v_lead) the bumper gap is
+``s_e = (s0 + v T) / sqrt(1 - (v / v0)^delta)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drivee2e_jax import reactive, replay
+from drivee2e_jax.scenario.suite import load_suite
+from drivee2e_jax.types import Category, Tracks
+
+DT_LOG = 0.1
+P = reactive.IDMParams()
+FAR = jnp.asarray([1e4, 1e4], jnp.float32)  # an ego box nobody meets
+LW = jnp.asarray([4.0, 2.0], jnp.float32)
+
+
+def _tracks(xy: np.ndarray, valid: np.ndarray, category: list[int], vel: np.ndarray | None = None) -> Tracks:
+    """Tracks from positions (A, T, 2); vel (A, T, 2) forward differences
+    unless given; yaw along vel."""
+    if vel is None:
+        d = np.diff(xy, axis=1) / DT_LOG
+        vel = np.concatenate([d, d[:, -1:]], axis=1)
+    vel = vel.astype(np.float32)
+    yaw = np.arctan2(vel[..., 1], vel[..., 0]).astype(np.float32)
+    a = xy.shape[0]
+    size = np.tile(np.asarray([[4.0, 2.0, 1.5]], np.float32), (a, 1))
+    return Tracks(
+        xy=jnp.asarray(xy, jnp.float32), yaw=jnp.asarray(yaw), vel=jnp.asarray(vel),
+        size=jnp.asarray(size), category=jnp.asarray(category, jnp.int32), valid=jnp.asarray(valid),
+        visible=jnp.asarray(valid), quality=jnp.asarray(valid), track_id=jnp.arange(a, dtype=jnp.int32),
+    )
+
+
+def _straight(x0: float, speed: float, steps: int, y: float = 0.0) -> np.ndarray:
+    k = np.arange(steps, dtype=np.float32)
+    return np.stack([x0 + speed * DT_LOG * k, np.full(steps, y, np.float32)], axis=-1)
+
+
+def _rollout(tracks: Tracks, ego_index: int, n: int, dt: float, ego_xy=FAR, ego_yaw=0.0, ego_speed=0.0):
+    """Scan n steps with a fixed ego box; returns AgentStates stacked (n, ...)."""
+    arc = reactive.path_arc(tracks)
+    ego_i = jnp.int32(ego_index)
+
+    def body(state, k):
+        t = k.astype(jnp.float32) * dt
+        out = reactive.agents_at(state, tracks, arc, t, DT_LOG)
+        state = reactive.step(state, tracks, arc, t, dt, DT_LOG, ego_xy, jnp.float32(ego_yaw),
+                              jnp.float32(ego_speed), LW, P, ego_index=ego_i)
+        return state, out
+
+    _, out = jax.jit(lambda: jax.lax.scan(body, reactive.init(tracks, DT_LOG, P, ego_index=ego_i), jnp.arange(n)))()
+    return out
+
+
+def test_follower_converges_to_idm_equilibrium_gap():
+    # Row 0 ego (far away, not an agent); row 1 leader at 10 m/s; row 2 a
+    # follower logged at 15 m/s (so it must yield) starting 40 m behind.
+    steps = 900
+    xy = np.stack([_straight(-1e3, 0.0, steps, y=500.0), _straight(50.0, 10.0, steps),
+                   _straight(10.0 - 4.0, 15.0, steps)])
+    tracks = _tracks(xy, np.ones((3, steps), bool), [Category.CAR] * 3)
+    out = _rollout(tracks, 0, 850, 0.1)
+    gap = float(out.xy[-1, 1, 0] - out.xy[-1, 2, 0]) - 4.0  # bumper to bumper
+    v0 = P.v0_scale * 15.0
+    s_e = (P.s0 + 10.0 * P.time_headway) / math.sqrt(1.0 - (10.0 / v0) ** P.delta)
+    assert abs(gap - s_e) / s_e < 0.01, (gap, s_e)
+    assert abs(float(jnp.linalg.norm(out.vel[-1, 2])) - 10.0) < 0.1
+    # The leader, unobstructed, replays its log exactly.
+    log = jax.vmap(lambda t: replay.agents_at(tracks, t, DT_LOG))(jnp.arange(850, dtype=jnp.float32) * 0.1)
+    np.testing.assert_allclose(out.xy[:, 1], log.xy[:, 1], atol=1e-3)
+
+
+def test_free_agent_replays_log_exactly():
+    # A curved log accelerating at 3 m/s^2 (more than IDM's a = 2 m/s^2, so
+    # plain IDM would fall behind) with its exact logged velocity, at dt =
+    # 0.05 s (off-sample times): position equals replay.agents_at within 1e-3 m.
+    steps = 120
+    tt = np.arange(steps) * DT_LOG
+    ang = 0.02 * (5.0 * tt + 1.5 * tt**2)  # arc 5 t + 1.5 t^2 on a 50 m circle
+    circle = np.stack([50.0 * np.sin(ang), 50.0 - 50.0 * np.cos(ang)], axis=-1)
+    speed = (5.0 + 3.0 * tt)[:, None]
+    vel = np.stack([np.zeros((steps, 2)), speed * np.stack([np.cos(ang), np.sin(ang)], axis=-1)])
+    xy = np.stack([_straight(-1e3, 0.0, steps, y=500.0), circle])
+    tracks = _tracks(xy, np.ones((2, steps), bool), [Category.CAR] * 2, vel)
+    out = _rollout(tracks, 0, 200, 0.05)
+    log = jax.vmap(lambda t: replay.agents_at(tracks, t, DT_LOG))(jnp.arange(200, dtype=jnp.float32) * 0.05)
+    np.testing.assert_allclose(out.xy[:, 1], log.xy[:, 1], atol=1e-3)
+    np.testing.assert_array_equal(out.valid, log.valid)
+
+
+def test_agent_stops_behind_stopped_ego_without_penetrating():
+    # Agent logged at 10 m/s through x = 60, where the stopped ego box stands.
+    steps = 200
+    xy = np.stack([_straight(60.0, 0.0, steps), _straight(0.0, 10.0, steps)])
+    tracks = _tracks(xy, np.ones((2, steps), bool), [Category.CAR] * 2)
+    out = _rollout(tracks, 0, 150, 0.1, ego_xy=jnp.asarray([60.0, 0.0], jnp.float32))
+    gaps = 60.0 - np.asarray(out.xy[:, 1, 0]) - 4.0
+    assert gaps.min() > 0.0
+    assert gaps[-1] >= P.s0 - 0.05
+    assert float(jnp.linalg.norm(out.vel[-1, 1])) < 0.05  # IDM creeps towards s0 asymptotically
+    assert np.all(np.diff(np.asarray(out.xy[:, 1, 0])) >= -1e-5)  # never reverses
+
+
+def test_pedestrians_and_cyclists_replay_exactly_through_the_ego():
+    steps = 100
+    xy = np.stack([_straight(20.0, 0.0, steps), _straight(0.0, 1.5, steps), _straight(0.0, 5.0, steps, y=0.2)])
+    tracks = _tracks(xy, np.ones((3, steps), bool), [Category.CAR, Category.PEDESTRIAN, Category.CYCLIST])
+    out = _rollout(tracks, 0, 90, 0.1, ego_xy=jnp.asarray([20.0, 0.0], jnp.float32))
+    log = jax.vmap(lambda t: replay.agents_at(tracks, t, DT_LOG))(jnp.arange(90, dtype=jnp.float32) * 0.1)
+    np.testing.assert_array_equal(out.xy[:, 1:], log.xy[:, 1:])
+    np.testing.assert_array_equal(out.vel[:, 1:], log.vel[:, 1:])
+
+
+def test_late_and_leaving_agents_valid_exactly_when_logged():
+    # Row 1 exists on log steps 10..30, row 2 (behind it, faster) on 5..60.
+    steps = 80
+    valid = np.zeros((3, steps), bool)
+    valid[0] = True
+    valid[1, 10:31] = True
+    valid[2, 5:61] = True
+    xy = np.stack([_straight(-1e3, 0.0, steps, y=500.0), _straight(20.0, 5.0, steps), _straight(0.0, 12.0, steps)])
+    tracks = _tracks(xy, valid, [Category.CAR] * 3)
+    out = _rollout(tracks, 0, 79, 0.1)
+    log = jax.vmap(lambda t: replay.agents_at(tracks, t, DT_LOG))(jnp.arange(79, dtype=jnp.float32) * 0.1)
+    np.testing.assert_array_equal(out.valid, log.valid)
+    assert bool(jnp.all(jnp.isfinite(out.xy)))
+    # Row 2 yields to row 1 while it exists (lags its log) ...
+    lag = np.asarray(log.xy[:, 2, 0] - out.xy[:, 2, 0])
+    assert lag[30] > 0.5
+    # ... and only while it has appeared: before step 10 it is on its log.
+    np.testing.assert_allclose(lag[5:10], 0.0, atol=1e-3)
+
+
+def test_jit_vmap_two_scenarios_deterministic_and_drift():
+    batch = load_suite("tiny").pack(None).scenario
+    two = jax.tree_util.tree_map(lambda x: x[:2], batch)
+    n, dt = 40, 0.1
+
+    def roll(sc):
+        tracks, ego = sc.tracks, sc.ego_index
+        arc = reactive.path_arc(tracks)
+        lw = tracks.size[ego, :2]
+
+        def body(state, k):
+            t = k.astype(jnp.float32) * dt
+            e = replay.ego_log_at(tracks, ego, t, sc.dt_log)
+            out = reactive.agents_at(state, tracks, arc, t, sc.dt_log)
+            state = reactive.step(state, tracks, arc, t, dt, sc.dt_log, e.xy, e.yaw,
+                                  jnp.linalg.norm(e.vel), lw, P, ego_index=ego)
+            return state, out.xy
+
+        return jax.lax.scan(body, reactive.init(tracks, sc.dt_log, P, ego_index=ego), jnp.arange(n))[1]
+
+    f = jax.jit(jax.vmap(roll))
+    a, b = f(two), f(two)
+    np.testing.assert_array_equal(a, b)
+    single = jax.jit(roll)(jax.tree_util.tree_map(lambda x: x[1], two))
+    np.testing.assert_allclose(a[1], single, atol=1e-4)
+    d = reactive.drift(jax.tree_util.tree_map(lambda x: x[0], two), dt, n)
+    assert math.isfinite(d["mean_m"]) and d["max_m"] >= d["mean_m"] >= 0.0
+
+
+def test_gradient_through_the_leader_gap():
+    # Same stop as above, 3 s in: moving the stopped ego 1 m further lets the
+    # yielding agent advance, so d x_agent / d x_ego > 0 (and finite).
+    steps = 60
+    xy = np.stack([_straight(40.0, 0.0, steps), _straight(0.0, 10.0, steps)])
+    tracks = _tracks(xy, np.ones((2, steps), bool), [Category.CAR] * 2)
+
+    def final_x(ego_x):
+        out = _rollout(tracks, 0, 30, 0.1, ego_xy=jnp.stack([ego_x, jnp.float32(0.0)]))
+        return out.xy[-1, 1, 0]
+
+    g = float(jax.grad(final_x)(jnp.float32(40.0)))
+    assert math.isfinite(g) and 0.0 < g < 2.0, g
