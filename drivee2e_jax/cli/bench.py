@@ -14,6 +14,7 @@ examples:
   drivee2e bench --task lane_following --policy expert --repetitions 3
   drivee2e bench --variant visible_vehicles --policy log_replay --policy expert
   drivee2e bench --policy ad_mlp:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3 --policy stop
+  drivee2e bench --policy expert --preset nuplan --agents idm --collisions at_fault --out results/nuplan-idm
   drivee2e bench --coordinator 10.0.0.1:4000 --num-processes 2 --process-id 0   # and --process-id 1 elsewhere
 
 Reference policies can be named without a path: log_replay, expert, stop,
@@ -28,6 +29,11 @@ and average speed 0.7-1.1 x the speed limit); see drivee2e_jax/eval/tasks.py.
 cameras along the logged run removed: visible_vehicles (vehicles only) or
 visible_all (every category); complete (default) = as recorded. The masks are
 computed once per split and cached (scenario/variants.py).
+--preset nuplan / navsim make nuPlan's closed-loop score / NAVSIM's EPDMS the
+headline (rows also carry nuplan_* / navsim_* sub-metrics; LB-style RC / DS
+are still computed). --collisions at_fault counts only the collisions nuPlan
+holds the ego responsible for; the tables show DS and SR both ways anyway.
+--agents idm makes the other vehicles react (IDM) instead of replaying logs.
 Results go to results/<suite>-<split>[-<task>][-<variant>]/ unless --out is given. One run at a
 time writes a folder (a second one stops, naming the first). A rerun resumes: a finished policy is
 skipped only while the suite content, settings, package version and its policy file / arguments /
@@ -61,8 +67,24 @@ def add_parser(subparsers) -> None:
     p.add_argument(
         "--preset",
         default="paper",
-        choices=("paper", "drivee2e", "lb20", "lb21", "b2d"),
-        help="scoring rules (default: paper = DriveE2E as its paper defines SR/DS; see docs/metrics.md)",
+        metavar="NAME",
+        help="scoring rules: paper, drivee2e, lb20, lb21, b2d, nuplan (nuPlan closed-loop score) or navsim "
+             "(NAVSIM EPDMS) (default: paper = DriveE2E as its paper defines SR/DS; see docs/metrics.md)",
+    )
+    p.add_argument(
+        "--collisions",
+        default="all",
+        metavar="MODE",
+        help="which collisions count against IS / DS / SR: all (every collision with a logged agent, the paper's "
+             "protocol; default) or at_fault (nuPlan's attribution: hitting a stopped agent, rear-ending, or a "
+             "lateral contact while changing lanes / off the drivable area)",
+    )
+    p.add_argument(
+        "--agents",
+        default="log",
+        metavar="MODEL",
+        help="the other agents: log (replay the recorded tracks, non-reactive; default) or idm (vehicles react "
+             "to the ego with the Intelligent Driver Model)",
     )
     p.add_argument("--dt", type=float, default=0.1,
                    help="simulation step in seconds, 0 < dt <= 1 and <= the log step (default: 0.1)")
@@ -121,6 +143,8 @@ def run(args) -> int:
         task=args.task,
         repetitions=args.repetitions,
         variant=args.variant,
+        collisions=args.collisions,
+        agents=args.agents,
         coordinator=args.coordinator,
         num_processes=args.num_processes,
         process_id=args.process_id,

@@ -71,6 +71,11 @@ class BenchConfig:
       variant: suite variant (``scenario.variants.VARIANTS``): ``complete``,
         or agents never visible from the ego's cameras along the logged run
         removed (``visible_vehicles`` / ``visible_all``).
+      collisions: which collisions count against IS / DS / SR
+        (``metrics.driving_score.COLLISION_MODES``): ``all`` or ``at_fault`` (nuPlan's
+        attribution); rows carry both either way.
+      agents: the other agents (``sim.AGENT_MODELS``): ``log``
+        (non-reactive replay) or ``idm`` (reactive IDM vehicles).
       coordinator / num_processes / process_id: several processes
         (``distributed.initialize``; None = env or one process): each rolls
         out its part of the scenarios, process 0 gathers and writes.
@@ -96,6 +101,8 @@ class BenchConfig:
     gps_noise_std: float = 0.0
     compass_noise_std: float = 0.0
     variant: str = "complete"
+    collisions: str = "all"
+    agents: str = "log"
     coordinator: str | None = None
     num_processes: int | None = None
     process_id: int | None = None
@@ -103,12 +110,14 @@ class BenchConfig:
     def run_spec(self) -> RunSpec:
         """The requested ``RunSpec`` of this run (``run.json`` once resolved;
         ``split`` None until ``run_bench`` picks one). Raises DriveE2EError
-        for a bad dt, timing, seed, limit, repetitions, noise, task or variant."""
+        for a bad dt, timing, seed, limit, repetitions, noise, task, variant,
+        preset, collision mode or agent model."""
         return RunSpec(
             suite=self.suite, split=self.split, preset=self.preset, dt=self.dt, control_every=self.control_every,
             latency=self.latency, seed=self.seed, open_loop=self.open_loop, task=self.task,
             repetitions=self.repetitions, limit=self.limit, gps_noise_std=self.gps_noise_std,
-            compass_noise_std=self.compass_noise_std, variant=self.variant,
+            compass_noise_std=self.compass_noise_std, variant=self.variant, collisions=self.collisions,
+            agents=self.agents,
         )
 
 

@@ -54,7 +54,9 @@ REPETITION_KEYS = ("repetition", "seed")
 CATEGORICAL = frozenset({"policy", "scenario_id", "split", "intersection_id", "behavior", "weather",
                          "time_of_day", "status", "id", "index", *REPETITION_KEYS})
 #: Shown in the comparison tables; left out of the generic column table.
-HEADLINE = frozenset({"route_completion", "infraction_score", "driving_score", "success"})
+HEADLINE = frozenset({"route_completion", "infraction_score", "driving_score", "success", "driving_score_all",
+                      "driving_score_at_fault", "success_all", "success_at_fault", "infraction_score_all",
+                      "infraction_score_at_fault", "nuplan_score", "epdms"})
 #: Kept in ``scenarios.csv`` but left out of the report's tables: the Behavior
 #: Metrics eq. (2) "jerk" (mean signed speed change per step, m/s), so that the
 #: report shows one jerk, ``JERK_COLUMN``.
@@ -186,7 +188,8 @@ def _run_section(run: _Run) -> str:
         f"# Benchmark report: {i.get('suite', '?')} / {i.get('split', '?')}",
         "",
         f"* Suite **{i.get('suite', '?')}** v{i.get('suite_version', '?')}, split **{i.get('split', '?')}**, "
-        f"scoring preset **{i.get('preset', '?')}**",
+        f"scoring preset **{i.get('preset', '?')}**, collisions counted: **{i.get('collisions', 'all')}**, "
+        f"other agents: **{i.get('agents', 'log')}**",
         f"* {i.get('num_scenarios', '?')} scenarios × {len(run.policies)} policies "
         f"({', '.join(f'`{p}`' for p in run.policies)}); {len(run.rows)} episode rows in `scenarios.csv`",
         f"* Simulation: dt {i.get('dt', '?')} s, control every {i.get('control_every', '?')} step(s), "
@@ -223,9 +226,27 @@ _OVERALL = (  # (label, key in summary["overall"], decimals); a key ending in _c
 )
 
 
+def _attribution_metrics(run: _Run) -> list[tuple[str, str, int]]:
+    """(label, summary key, decimals) of the collision-attribution and
+    nuplan / navsim rows present in any policy's summary (``summary.
+    collision_means`` / ``preset_means``); the run's ``collisions`` mode is
+    marked "(chosen)". Older folders: none."""
+    mode = run.info.get("collisions", "all")
+    chosen = {m: " (chosen)" if m == mode else "" for m in ("all", "at_fault")}
+    out = [(f"DS, all collisions{chosen['all']}", "driving_score_all", 2),
+           (f"DS, at-fault collisions only{chosen['at_fault']}", "driving_score_at_fault", 2),
+           (f"SR %, all collisions{chosen['all']}", "success_rate_all", 1),
+           (f"SR %, at-fault collisions only{chosen['at_fault']}", "success_rate_at_fault", 1),
+           ("Collisions at fault", "collisions_at_fault", 0),
+           ("nuPlan score ×100", "nuplan_score", 2), ("NAVSIM EPDMS ×100", "epdms", 2)]
+    keys = {k for p in run.policies for s in run.summaries[p] for k in s["overall"]}
+    subs = sorted(k for k in keys if k.startswith(("nuplan_", "navsim_")) and k != "nuplan_score")
+    return [m for m in out if m[1] in keys] + [(f"{k} (mean)", k, 3) for k in subs]
+
+
 def _comparison_section(run: _Run) -> str:
     rows = [[label] + [_cell_of(run, [s["overall"] for s in run.summaries[p]], key, d) for p in run.policies]
-            for label, key, d in _OVERALL if not (run.multi and key.endswith("_ci95"))]
+            for label, key, d in (*_OVERALL, *_attribution_metrics(run)) if not (run.multi and key.endswith("_ci95"))]
     statuses = sorted({k for p in run.policies for s in run.summaries[p] for k in s["overall"].get("statuses", {})},
                       key=lambda k: (_status_rank(k), k))
     rows += [[f"status: {k}"] + [_fmt([s["overall"].get("statuses", {}).get(k, 0) for s in run.summaries[p]], 0)
@@ -406,6 +427,9 @@ COLUMN_HELP = {
     "l2_3s_uniad": "open-loop L2 at 3 s, m (UniAD)",
     "openloop_collision_rate": "open-loop collision rate of the predicted waypoints",
     "openloop_samples": "open-loop queries scored",
+    "collisions_at_fault": "agent / layout collisions the ego is at fault for (nuPlan's attribution: a stopped "
+                           "agent, rear-ending, or a lateral contact while in several lanes or off the drivable "
+                           "area; layout always)",
 }
 #: The report's own abbreviations (comparison table, group tables).
 ABBREVIATIONS = (
@@ -426,6 +450,12 @@ ABBREVIATIONS = (
     ("B2D smoothness %, B2D efficiency %", "Bench2Drive smoothness and efficiency (below; efficiency: B2D's "
                                            "mean over routes)"),
     ("mean of groups", "unweighted mean over the behaviour groups present (cf. DriveE2E's ability mean)"),
+    ("DS / SR %, all collisions; at-fault collisions only",
+     "DS and SR with every collision with a logged agent counted, and with only the at-fault ones (nuPlan's "
+     "attribution, `collisions_at_fault`); (chosen) = this run's `--collisions`, the DS / SR above"),
+    ("nuPlan score ×100, NAVSIM EPDMS ×100", "preset nuplan / navsim headline scores: mean over scenarios of the "
+                                              "per-scenario score (0-1) × 100; `nuplan_*` / `navsim_*` rows: means "
+                                              "of the sub-metrics"),
     ("†", f"fewer than {SMALL_GROUP} episodes in the group: a noisy estimate, no confidence interval"),
     ("–", "no value (nothing to average, or not in this run's data)"),
 )

@@ -31,7 +31,9 @@ The contract (``RunDir``):
   arrays actually evaluated, so an edited scenario file, a regenerated suite
   or a different limit/variant all change it, while moving or touching the
   suite folder does not) and ``drivee2e_version``. Any difference: the run is
-  refused with one line (``--force`` or another ``--out``). A run.json
+  refused with one line (``--force`` or another ``--out``); so a folder
+  scored with another ``--preset``, ``--collisions`` or ``--agents`` (all in
+  the RunSpec) is never mixed into the combined tables. A run.json
   without fingerprints (written by an older version) is refused too. Each
   policy file records its policy's ``fingerprint`` (``policy_fingerprint``:
   sha256 of the policy file, the ``make_policy`` arguments, sha256 of a

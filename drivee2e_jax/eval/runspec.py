@@ -2,8 +2,9 @@
 
 ``RunSpec`` holds every setting that decides a run's per-scenario results
 (suite, split, task, limit, variant, scoring preset, sim step, control
-timing, observation noise, seed, repetitions) and builds the three things a
-rollout needs from them: the packed batch (``batch``), the simulator config
+timing, observation noise, seed, repetitions, collision mode, agent model)
+and builds the three things a rollout needs from them: the packed batch
+(``batch``), the simulator config
 (``sim_config``) and the control timing (``timing``). ``drivee2e bench``
 (``eval.bench``) builds its spec from the command line and writes it as the
 results folder's ``run.json`` (``to_json``); re-simulation (``eval.traces``)
@@ -15,8 +16,11 @@ JSON compatibility: ``to_json`` writes exactly the keys and values
 one): suite, suite_version, split, num_scenarios, preset, dt, control_every,
 latency, seed, open_loop, task, repetitions, then gps_noise_std /
 compass_noise_std only when either is non-zero and variant / variant_removed
-only for a variant other than ``complete``. ``from_json`` accepts older files
-that lack keys (defaults as below) and ignores unknown ones.
+only for a variant other than ``complete``, collisions only when not ``all``
+and agents only when not ``log`` (so a folder made with other settings
+differs in that key and is refused, while older folders stay resumable).
+``from_json`` accepts older files that lack keys (defaults as below) and
+ignores unknown ones.
 
 A spec is *requested* (``limit`` as asked, ``suite_version`` /
 ``num_scenarios`` / ``variant_removed`` None) until ``resolve`` fills those
@@ -38,12 +42,12 @@ import numpy as np
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.tasks import Task, apply_task, get_task
 from drivee2e_jax.eval.variants import Variant, apply_variant, check_variant
-from drivee2e_jax.metrics.driving_score import score_preset
+from drivee2e_jax.metrics.driving_score import COLLISION_MODES, SCORE_PRESETS, score_preset
 from drivee2e_jax.observe.vector import ObsConfig
 from drivee2e_jax.rollout import ControlTiming
 from drivee2e_jax.scenario import load_suite
 from drivee2e_jax.scenario.flat import flatten_scenario
-from drivee2e_jax.sim import SimConfig
+from drivee2e_jax.sim import AGENT_MODELS, SimConfig
 
 #: The results folder's file holding the spec.
 RUN_JSON = "run.json"
@@ -66,7 +70,11 @@ def check_settings(spec: RunSpec) -> None:
     """DriveE2EError (one line naming the flag) for a setting no run can use:
     dt not a finite number in (0, ``MAX_DT``] s, control_every < 1,
     latency < 0, a seed outside [0, 2**32 - repetitions], repetitions or
-    limit < 1, negative or non-finite observation noise."""
+    limit < 1, negative or non-finite observation noise, an unknown
+    preset, collision mode or agent model (``check_choice``)."""
+    check_choice("--preset", "scoring preset", spec.preset, SCORE_PRESETS)
+    check_choice("--collisions", "collision mode", spec.collisions, COLLISION_MODES)
+    check_choice("--agents", "agent model", spec.agents, AGENT_MODELS)
     dt = spec.dt
     if isinstance(dt, bool) or not isinstance(dt, int | float | np.number) or not math.isfinite(dt) or not (
             0 < dt <= MAX_DT):
@@ -85,6 +93,14 @@ def check_settings(spec: RunSpec) -> None:
     for flag, v in (("--gps-noise-std", spec.gps_noise_std), ("--compass-noise-std", spec.compass_noise_std)):
         if isinstance(v, bool) or not isinstance(v, int | float | np.number) or not (math.isfinite(v) and v >= 0):
             raise DriveE2EError(f"{flag} must be a finite number >= 0, got {v!r}")
+
+
+def check_choice(flag: str, what: str, value: object, choices: tuple[str, ...]) -> None:
+    """DriveE2EError, one line naming ``flag`` and listing ``choices``, when
+    ``value`` is not one of them (e.g. ``--collisions: unknown collision mode
+    'foo'; expected one of all, at_fault``)."""
+    if not isinstance(value, str) or value not in choices:
+        raise DriveE2EError(f"{flag}: unknown {what} {value!r}; expected one of {', '.join(choices)}")
 
 
 def check_dt_against_logs(dt: float, meta) -> None:
@@ -186,6 +202,11 @@ class RunSpec:
       gps_noise_std: observation GPS noise, m (``observe.vector.ObsConfig``).
       compass_noise_std: observation compass noise, rad.
       variant: suite variant (``eval.variants.VARIANTS``).
+      collisions: which collisions count against IS / DS / SR
+        (``metrics.driving_score.COLLISION_MODES``): ``all`` (every collision with a logged agent,
+        the paper's protocol) or ``at_fault`` (nuPlan's attribution).
+      agents: the other agents (``sim.AGENT_MODELS``): ``log`` (non-reactive
+        replay of the logs) or ``idm`` (reactive IDM vehicles).
       suite_version: version of the suite run on (None until resolved).
       num_scenarios: scenarios evaluated (None until resolved).
       variant_removed: per category, (agents removed, non-ego agents in the
@@ -207,6 +228,8 @@ class RunSpec:
     gps_noise_std: float = 0.0
     compass_noise_std: float = 0.0
     variant: str = "complete"
+    collisions: str = "all"
+    agents: str = "log"
     suite_version: str | None = None
     num_scenarios: int | None = None
     variant_removed: tuple[tuple[str, tuple[int, int]], ...] | None = None
@@ -257,10 +280,12 @@ class RunSpec:
     def sim_config(self) -> SimConfig:
         """The ``SimConfig`` of this run (before the policy's sensors are
         added, ``eval.closedloop.with_policy_sensors``): ``dt``, the scoring
-        preset, the observation noise; everything else default. A bad value
-        raises DriveE2EError."""
+        preset with this run's collision mode, the agent model, the
+        observation noise; everything else default. A bad value raises
+        DriveE2EError."""
         try:
-            return SimConfig(dt=self.dt, score=score_preset(self.preset), obs=self.obs_config())
+            score = dataclasses.replace(score_preset(self.preset), collision_mode=self.collisions)
+            return SimConfig(dt=self.dt, score=score, obs=self.obs_config(), agents=self.agents)
         except ValueError as e:
             raise DriveE2EError(str(e)) from e
 
@@ -313,6 +338,10 @@ class RunSpec:
             out.update(gps_noise_std=self.gps_noise_std, compass_noise_std=self.compass_noise_std)
         if self.variant != "complete":  # recorded only when used: older run.json stay resumable
             out.update(variant=self.variant, variant_removed={c: list(v) for c, v in self.variant_removed or ()})
+        if self.collisions != "all":  # recorded only when used: older run.json stay resumable
+            out["collisions"] = self.collisions
+        if self.agents != "log":
+            out["agents"] = self.agents
         return out
 
     @classmethod
@@ -347,6 +376,8 @@ class RunSpec:
                 gps_noise_std=float(info.get("gps_noise_std", 0.0)),
                 compass_noise_std=float(info.get("compass_noise_std", 0.0)),
                 variant=str(info.get("variant", "complete")),
+                collisions=str(info.get("collisions", "all")),
+                agents=str(info.get("agents", "log")),
                 suite_version=None if version is None else str(version),
                 num_scenarios=n,
                 variant_removed=removed,

@@ -7,6 +7,16 @@ efficiency and multi-ability, fine-grained means, open-loop means, 95 %
 confidence intervals of SR and DS); ``format_tables`` prints them. Host side,
 plain Python + numpy.
 
+Collision attribution (``collision_means``): rows of this version carry DS /
+SR / IS with every collision counted (``*_all``) and with only nuPlan's
+at-fault ones (``*_at_fault``; nuPlan ``collision_utils`` /
+``no_ego_at_fault_collisions``); the summary gives both means side by side
+and ``format_tables`` marks the run's ``collisions`` mode. Presets nuplan /
+navsim add ``nuplan_score`` / ``epdms`` (x100, mean over scenarios) and the
+mean of every ``nuplan_*`` / ``navsim_*`` sub-metric (``preset_means``).
+Rows of older folders lack these columns: the keys are then absent and the
+tables show "-".
+
 Confidence intervals (docs/metrics.md, "Confidence intervals"): SR by the
 Wilson score interval (``wilson_ci``), DS by a percentile bootstrap of the
 mean over scenarios (``bootstrap_mean_ci``, ``CI_RESAMPLES`` resamples, seed
@@ -198,6 +208,8 @@ def summary_of(rows: list[dict], brief: bool = False, ci: bool = True) -> dict:
     )
     out.update(_fine_means(rows))
     out.update(_open_loop_means(rows))
+    out.update(collision_means(rows))
+    out.update(preset_means(rows))
     if any(r.min_speed_pct for r in recs):
         out["efficiency_pct"] = round(b2d_efficiency(recs), 4)
     return out
@@ -254,6 +266,73 @@ def _fine_means(rows: list[dict]) -> dict:
     return out
 
 
+#: (summary key, per-scenario column, scale) of the collision-attribution
+#: means: DS in points (mean of the per-scenario DS), SR in % (share of
+#: successful scenarios), IS as a fraction.
+COLLISION_MEANS = (
+    ("driving_score_all", "driving_score_all", 1.0),
+    ("driving_score_at_fault", "driving_score_at_fault", 1.0),
+    ("success_rate_all", "success_all", 100.0),
+    ("success_rate_at_fault", "success_at_fault", 100.0),
+    ("infraction_score_all", "infraction_score_all", 1.0),
+    ("infraction_score_at_fault", "infraction_score_at_fault", 1.0),
+)
+#: Headline scores of the nuplan / navsim presets: (per-scenario column in
+#: 0..1, sub-metric column prefix); the summary key is the column, x100.
+PRESET_SCORES = (("nuplan_score", "nuplan_"), ("epdms", "navsim_"))
+
+
+def as_bool(v) -> bool | None:
+    """A per-scenario boolean as stored (bool, 0/1, "True"/"False" from a
+    CSV); None for a missing or blank value."""
+    if v is None or v == "" or (isinstance(v, float) and math.isnan(v)):
+        return None
+    if isinstance(v, str):
+        return v.strip().lower() in ("true", "1", "1.0", "yes")
+    return bool(v)
+
+
+def collision_means(rows: list[dict]) -> dict:
+    """DS / SR / IS with all collisions and at-fault only (``COLLISION_MEANS``),
+    plus ``collisions_at_fault`` (total count), over ``rows``. A key is
+    present only when every row has its column (older rows: none)."""
+    out: dict = {}
+    for key, col, scale in COLLISION_MEANS:
+        vals = [as_bool(r.get(col)) if col.startswith("success") else r.get(col) for r in rows]
+        if rows and all(v is not None and (isinstance(v, bool) or finite(v)) for v in vals):
+            out[key] = round(scale * float(np.mean([float(v) for v in vals])), 4)
+    if rows and all(finite(r.get("collisions_at_fault")) for r in rows):
+        out["collisions_at_fault"] = int(sum(float(r["collisions_at_fault"]) for r in rows))
+    return out
+
+
+def preset_means(rows: list[dict]) -> dict:
+    """``nuplan_score`` / ``epdms`` x100 (mean over the scenarios that have
+    it) and the mean of each ``nuplan_*`` / ``navsim_*`` sub-metric column
+    (booleans as 0/1; NaN / blank skipped), rounded to 4 decimals."""
+    out: dict = {}
+    for score, prefix in PRESET_SCORES:
+        vals = [float(r[score]) for r in rows if finite(r.get(score))]
+        if vals:
+            out[score] = round(100.0 * float(np.mean(vals)), 4)
+        cols = sorted({c for r in rows for c in r if c.startswith(prefix) and c != score})
+        for c in cols:
+            vals = [v for v in (_number(r.get(c)) for r in rows) if v is not None]
+            if vals:
+                out[c] = round(float(np.mean(vals)), 4)
+    return out
+
+
+def _number(v) -> float | None:
+    """A sub-metric value as a float (booleans and "True" / "False" as 1 / 0);
+    None for missing, blank, NaN or text."""
+    if isinstance(v, str) and v.strip().lower() in ("true", "false"):
+        return float(v.strip().lower() == "true")
+    if isinstance(v, bool | int | float | np.number) and finite(v):
+        return float(v)
+    return None
+
+
 def _counts(values) -> dict:
     out: dict = {}
     for v in values:
@@ -287,6 +366,56 @@ def _ci_table(pols: dict, nw: int) -> list[str]:
     return lines
 
 
+def _cell(o: dict, key: str, width: int, decimals: int) -> str:
+    v = o.get(key)
+    return f"{v:>{width}.{decimals}f}" if v is not None and finite(v) else f"{'-':>{width}}"
+
+
+def _collision_table(pols: dict, nw: int, mode: str) -> list[str]:
+    """Console lines: DS and SR with all collisions and at-fault only, side by
+    side; ``*`` marks the run's collision mode (the headline DS / SR). None
+    when no policy's rows carry the attribution columns."""
+    if not any("driving_score_all" in s["overall"] or "driving_score_at_fault" in s["overall"]
+               for s in pols.values()):
+        return []
+    mark = {m: "*" if m == mode else "" for m in ("all", "at_fault")}
+    cols = ((f"DS{mark['all']}", "driving_score_all", 2), (f"DS at-fault{mark['at_fault']}", "driving_score_at_fault", 2),
+            (f"SR %{mark['all']}", "success_rate_all", 1),
+            (f"SR at-fault{mark['at_fault']}", "success_rate_at_fault", 1),
+            ("coll at-fault", "collisions_at_fault", 0))
+    widths = [max(9, len(h) + 2) for h, _, _ in cols]
+    head = f"{'collisions':<{nw}}" + "".join(f"{h:>{w}}" for (h, _, _), w in zip(cols, widths))
+    lines = ["", head, "-" * len(head)]
+    for name, s in pols.items():
+        lines.append(f"{name:<{nw}}" + "".join(_cell(s["overall"], k, w, d) for (_, k, d), w in zip(cols, widths)))
+    lines.append(f"(* = the run's --collisions {mode}: the DS / SR above; all = every collision with a logged agent "
+                 "counts, at-fault = nuPlan's attribution)")
+    return lines
+
+
+def _preset_table(pols: dict, nw: int) -> list[str]:
+    """Console lines: the nuPlan score / EPDMS (x100, mean over scenarios) and
+    the mean of each sub-metric, one table per preset present in any
+    policy's summary; transposed (a row per metric, a column per policy)
+    since the sub-metric names are long."""
+    lines: list[str] = []
+    for score, prefix, title in (("nuplan_score", "nuplan_", "nuPlan score"), ("epdms", "navsim_", "EPDMS")):
+        if not any(score in s["overall"] for s in pols.values()):
+            continue
+        subs = sorted({k for s in pols.values() for k in s["overall"] if k.startswith(prefix) and k != score})
+        mw = max(nw, len(title) + 9, *(len(k) - len(prefix) + 4 for k in subs))
+        widths = [max(9, len(n) + 2) for n in pols]
+        head = f"{title + ' x100':<{mw}}" + "".join(f"{n:>{w}}" for n, w in zip(pols, widths))
+        lines += ["", head, "-" * len(head)]
+        lines.append(f"{title:<{mw}}" + "".join(_cell(s["overall"], score, w, 2) for s, w in zip(pols.values(), widths)))
+        for k in subs:
+            lines.append(f"{'  ' + k[len(prefix):]:<{mw}}"
+                         + "".join(_cell(s["overall"], k, w, 3) for s, w in zip(pols.values(), widths)))
+        lines.append(f"({title}: mean over scenarios x100; indented: sub-metric means over scenarios, "
+                     f"columns {prefix}* of scenarios.csv)")
+    return lines
+
+
 def format_tables(summary: dict) -> str:
     """The two tables printed at the end of a run (plain text)."""
     pols = summary["policies"]
@@ -307,6 +436,8 @@ def format_tables(summary: dict) -> str:
             + (f"{o.get('task_success_rate', float('nan')):>10.1f}" if with_task else "")
         )
     lines += _ci_table(pols, nw)
+    lines += _collision_table(pols, nw, summary["run"].get("collisions", "all"))
+    lines += _preset_table(pols, nw)
     groups = [g for g in BEHAVIOR_ORDER if any(g in s["by_behavior"] for s in pols.values())]
     head = f"{'SR % by behaviour':<{nw}}" + "".join(f"{g:>7}" for g in groups)
     lines += ["", head, "-" * len(head)]

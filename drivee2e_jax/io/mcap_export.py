@@ -40,7 +40,11 @@ at its step ``round(t / dt)``. Episodes follow one another (each starts 1 s
 after the previous one ends), so the timeline plays them in turn and the map
 of one never overlaps another's. The offsets are in the file's
 ``drivee2e.episode`` metadata records (scenario_id, policy, offset_ns, steps,
-driving_score). Every entity has a lifetime (one step for the moving ones,
+driving_score; driving_score_all / driving_score_at_fault / collisions_at_fault
+when the stored row has them). A collision event's log line names its nuPlan
+collision type and fault right after its time (``collisions_vehicle at t=3.6 s
+[active_front, at fault] (...)``; ``fault_text``), so "type at t=" stays the
+start of every line. Every entity has a lifetime (one step for the moving ones,
 the episode for the map) so nothing lingers.
 """
 
@@ -310,11 +314,43 @@ def metrics(trace, k: int, ns: int, dt_ns: int) -> dict:
     return out
 
 
+def fault_text(event: dict) -> str:
+    """`` [<collision_type>, at fault]`` / `` [<collision_type>, not at fault]``
+    for a collision event that carries them (nuPlan ``collision_utils``
+    CollisionType in lower case, ``static`` for a layout object), "" for
+    any other event or one of an older run."""
+    kind, fault = event.get("collision_type"), event.get("at_fault")
+    parts = ([str(kind)] if kind is not None else []) + (
+        [] if fault is None else ["at fault" if bool(fault) else "not at fault"])
+    return f" [{', '.join(parts)}]" if parts else ""
+
+
 def infraction_log(trace, event: dict, ns: int) -> Log:
-    """A WARNING log line of one stored infraction event (type, t s, and its other fields)."""
+    """A WARNING log line of one stored infraction event (type, t s, the
+    collision type and fault when it has them, and its other fields)."""
     detail = ", ".join(f"{k}={v}" for k, v in event.items() if k not in ("type", "t"))
-    return Log(timestamp=fs.timestamp(ns), level=Log.WARNING, message=f"{event['type']} at t={event['t']} s ({detail})",
+    return Log(timestamp=fs.timestamp(ns), level=Log.WARNING,
+               message=f"{event['type']} at t={event['t']} s{fault_text(event)} ({detail})",
                name=f"drivee2e/{trace.scenario_id}", file="", line=0)
+
+
+def episode_metadata(trace, offset_ns: int) -> dict[str, str]:
+    """The ``drivee2e.episode`` metadata record of one trace (strings only):
+    scenario_id, policy, offset_ns, steps, driving_score (re-simulated),
+    stored_driving_score, and the stored row's driving_score_all /
+    driving_score_at_fault / collisions_at_fault when it has them."""
+    out = {"scenario_id": trace.scenario_id, "policy": trace.policy, "offset_ns": str(offset_ns),
+           "steps": str(trace.num_steps), "driving_score": f"{trace.driving_score:.4f}",
+           "stored_driving_score": f"{trace.stored_driving_score:.4f}"}
+    row = getattr(trace, "row", None) or {}
+    for key in ("driving_score_all", "driving_score_at_fault"):
+        v = row.get(key)
+        if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+            out[key] = f"{float(v):.4f}"
+    v = row.get("collisions_at_fault")
+    if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v):
+        out["collisions_at_fault"] = str(int(v))
+    return out
 
 
 # --------------------------------------------------------------------------
@@ -397,7 +433,5 @@ def _write(traces, stream) -> None:
             put("metrics", ns, metrics(tr, k, ns, dt_ns))
             for e in events_at.get(k, ()):
                 put("infractions", ns, infraction_log(tr, e, ns))
-        w.add_metadata("drivee2e.episode", {
-            "scenario_id": tr.scenario_id, "policy": tr.policy, "offset_ns": str(offset), "steps": str(tr.num_steps),
-            "driving_score": f"{tr.driving_score:.4f}", "stored_driving_score": f"{tr.stored_driving_score:.4f}"})
+        w.add_metadata("drivee2e.episode", episode_metadata(tr, offset))
     w.finish()

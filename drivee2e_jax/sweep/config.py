@@ -23,7 +23,8 @@ from pathlib import Path
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.tasks import TASKS
 from drivee2e_jax.eval.variants import VARIANTS
-from drivee2e_jax.metrics.driving_score import SCORE_PRESETS
+from drivee2e_jax.metrics.driving_score import COLLISION_MODES, SCORE_PRESETS
+from drivee2e_jax.sim import AGENT_MODELS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,6 +104,11 @@ class SimSection:
       latency: action latency, sim steps (>= 0).
       gps_noise_std: GPS position noise of the observation, m (>= 0).
       compass_noise_std: compass heading noise, rad (>= 0).
+      collisions: which collisions count against IS / DS / SR
+        (``metrics.driving_score.COLLISION_MODES``): ``all`` (the paper's protocol) or
+        ``at_fault`` (nuPlan's attribution); ``bench --collisions``.
+      agents: the other agents (``sim.AGENT_MODELS``): ``log``
+        (non-reactive replay) or ``idm`` (reactive IDM); ``bench --agents``.
     """
 
     dt: tuple[float, ...] = (0.1,)
@@ -111,13 +117,21 @@ class SimSection:
     latency: tuple[int, ...] = (0,)
     gps_noise_std: tuple[float, ...] = (0.0,)
     compass_noise_std: tuple[float, ...] = (0.0,)
+    collisions: tuple[str, ...] = ("all",)
+    agents: tuple[str, ...] = ("log",)
 
+
+#: ``[sim]`` keys added after sweeps were first recorded, with the value an
+#: older ``sweep.json`` without them stands for (resuming fills them in).
+SIM_KEYS_ADDED = {"collisions": ["all"], "agents": ["log"]}
 
 #: Aggregates a combined table can show (``summary.summary_of`` keys).
 METRICS = (
     "success_rate", "driving_score", "route_completion", "infraction_score", "collisions_per_km",
     "red_light_per_km", "outside_route_lanes_pct", "km_driven", "task_success_rate", "efficiency_pct",
     "average_speed_kmh", "position_deviation_mean_m", "eval_time_s",
+    "driving_score_all", "driving_score_at_fault", "success_rate_all", "success_rate_at_fault",
+    "collisions_at_fault", "nuplan_score", "epdms",
 )
 
 
@@ -284,6 +298,11 @@ def _check_values(cfg: SweepConfig, source: str) -> None:
     for p in s.preset:
         if p not in SCORE_PRESETS:
             bad("[sim]", f"preset: unknown preset {p!r} (expected one of: {', '.join(SCORE_PRESETS)})")
+    for key, choices, what in (("collisions", COLLISION_MODES, "collision mode"),
+                               ("agents", AGENT_MODELS, "agent model")):
+        for v in getattr(s, key):
+            if v not in choices:
+                bad("[sim]", f"{key}: unknown {what} {v!r} (expected one of: {', '.join(choices)})")
     for key in ("metrics", "compare"):
         for m in getattr(o, key):
             if m not in METRICS:

@@ -39,13 +39,13 @@ from drivee2e_jax.files import (
 )
 from drivee2e_jax.policy import resolve_policy_path
 from drivee2e_jax.progress import progress as progress_bar
-from drivee2e_jax.sweep.config import SimSection, SweepConfig, out_dir
+from drivee2e_jax.sweep.config import SIM_KEYS_ADDED, SimSection, SweepConfig, out_dir
 
 #: Marker of a complete run inside its folder.
 DONE_FILE = "bench.log"
 #: Run-id parts for settings away from their default: field -> prefix.
 ID_PREFIX = {"dt": "dt", "preset": "", "control_every": "ce", "latency": "lat", "gps_noise_std": "gps",
-             "compass_noise_std": "compass"}
+             "compass_noise_std": "compass", "collisions": "coll_", "agents": "agents_"}
 #: Columns of combined.csv before the metrics.
 RUN_COLUMNS = ("run_id", "suite", "split", "variant", "task", *ID_PREFIX, "policy", "repetitions", "num_scenarios")
 
@@ -57,7 +57,8 @@ class Run:
     Attributes:
       run_id: folder name under ``runs/`` (suite-split, then every setting off its default).
       suite, split, variant, task: the data.  dt (s), preset, control_every
-      (steps), latency (steps), gps_noise_std (m), compass_noise_std (rad): the simulator.
+      (steps), latency (steps), gps_noise_std (m), compass_noise_std (rad),
+      collisions (``all`` / ``at_fault``), agents (``log`` / ``idm``): the simulator.
     """
 
     run_id: str
@@ -71,6 +72,8 @@ class Run:
     latency: int
     gps_noise_std: float
     compass_noise_std: float
+    collisions: str = "all"
+    agents: str = "log"
 
 
 def expand(cfg: SweepConfig) -> list[Run]:
@@ -113,7 +116,7 @@ def bench_config(cfg: SweepConfig, run: Run, out: Path, *, force: bool = False, 
         seed=cfg.repetitions.seed, progress=progress, open_loop=cfg.outputs.open_loop, task=run.task,
         repetitions=cfg.repetitions.count, policy_kwargs=tuple(dict(p.kwargs) for p in cfg.policies),
         policy_names=tuple(p.name for p in cfg.policies), gps_noise_std=run.gps_noise_std,
-        compass_noise_std=run.compass_noise_std, **extra,
+        compass_noise_std=run.compass_noise_std, collisions=run.collisions, agents=run.agents, **extra,
     )
 
 
@@ -187,6 +190,7 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
             old = json.loads(meta.read_text())
         except json.JSONDecodeError as e:
             raise DriveE2EError(f"{meta}: unreadable ({e}); use --force to start over") from None
+        old = with_added_sim_keys(old)
         if old.get("config") != record["config"]:
             diff = _diff(old.get("config") or {}, record["config"])
             raise DriveE2EError(f"{out}: holds a sweep with another config (differs in {diff}); "
@@ -198,6 +202,16 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
             (out / "runs" / r.run_id / DONE_FILE).unlink(missing_ok=True)
     remove_stray_temp_files(out)  # a killed sweep's (safe: this sweep holds the folder's lock)
     atomic_write_json(meta, record)
+
+
+def with_added_sim_keys(record: dict) -> dict:
+    """A ``sweep.json`` record with the ``[sim]`` keys added since it was
+    written (``config.SIM_KEYS_ADDED``) at the value it stood for, so that an
+    older sweep folder still resumes."""
+    cfg = record.get("config") if isinstance(record, dict) else None
+    if not isinstance(cfg, dict) or not isinstance(cfg.get("sim"), dict):
+        return record
+    return {**record, "config": {**cfg, "sim": {**SIM_KEYS_ADDED, **cfg["sim"]}}}
 
 
 def _diff(old: dict, new: dict) -> str:

@@ -4,6 +4,8 @@ Host side only. An episode record (all coordinates world frame, m, rounded to
 1 cm; ``flat`` = ``[x0, y0, x1, y1, ...]``; frame ``k`` is ``trace.times[k]``)::
 
     id, policy, status, ds, rc (stored Driving Score / route completion, %),
+    ds_all, ds_at_fault (stored DS with every collision counted / with only
+    the at-fault ones; null for rows of older runs),
     behavior, split, map_id, reproduced,
     dt (s per frame), t0 (s at frame 0), n (frames),
     route:   flat route polyline,
@@ -11,7 +13,9 @@ Host side only. An episode record (all coordinates world frame, m, rounded to
     agents:  [{id, cat, l, w, f0, x, y, yaw}]  samples from frame f0 on, null where absent,
     signals: [S][n] ``SignalState`` values, one row per map stop line,
     metrics: [{name, label, unit, values: [n], range?: [lo, hi], color?}],
-    events:  [{type, t, x, y, frame, ...}]  the stored infraction events,
+    events:  [{type, t, x, y, frame, ...}]  the stored infraction events
+             (collisions also carry collision_type, at_fault and ``fault``,
+             a short label such as "active_front, at fault": ``collision_label``),
     bev:     {stride, channels, colors, h, w, count, sheet: PNG data URI} or null:
              ``count`` frames of h x w pixels stacked top to bottom in one
              palette PNG (frame k = rows k*h .. (k+1)*h),
@@ -127,12 +131,29 @@ def metrics_payload(trace) -> list[dict]:
     return out
 
 
+def collision_label(event: dict) -> str | None:
+    """The collision type and fault of a stored collision event in words
+    (``"active_front, at fault"``, ``"active_rear, not at fault"``,
+    ``"static, at fault"``); None for an event without them (other types,
+    rows of older runs). Types: nuPlan ``collision_utils.CollisionType``
+    in lower case, ``static`` for a layout object."""
+    kind, fault = event.get("collision_type"), event.get("at_fault")
+    if kind is None and fault is None:
+        return None
+    parts = [str(kind)] if kind is not None else []
+    if fault is not None:
+        parts.append("at fault" if bool(fault) else "not at fault")
+    return ", ".join(parts)
+
+
 def events_payload(events: list[dict], times: np.ndarray) -> list[dict]:
-    """Stored events with the frame (nearest traced instant) each happened at."""
+    """Stored events with the frame (nearest traced instant) each happened
+    at, and for collisions ``fault`` (``collision_label``)."""
     out = []
     for e in events:
         k = int(np.clip(np.searchsorted(times, float(e.get("t", 0.0)) - 1e-6), 0, len(times) - 1))
-        out.append({**e, "frame": k})
+        label = collision_label(e)
+        out.append({**e, "frame": k, **({"fault": label} if label else {})})
     return sorted(out, key=lambda e: e["frame"])
 
 
@@ -213,13 +234,26 @@ def sensor_panes(trace, image_stride: int, points_stride: int, max_points: int, 
 def index_entry(ep: dict, key: str) -> dict:
     """The index row of an episode record (what the page lists, filters and
     sorts before any episode file is loaded): ``key`` (its file stem), id,
-    policy, status, ds, rc, behavior, split, map_id, n, reproduced, and
-    ``infractions``: {event type: count} of its stored events."""
+    policy, status, ds, ds_all, ds_at_fault (null when the record has none),
+    rc, behavior, split, map_id, n, reproduced, and ``infractions``:
+    {event type: count} of its stored events."""
     counts: dict[str, int] = {}
     for e in ep["events"]:
         counts[str(e.get("type"))] = counts.get(str(e.get("type")), 0) + 1
     keep = ("id", "policy", "status", "ds", "rc", "behavior", "split", "map_id", "n", "reproduced")
-    return {"key": key, **{k: ep[k] for k in keep}, "infractions": counts}
+    both = {k: ep.get(k) for k in ("ds_all", "ds_at_fault")}
+    return {"key": key, **{k: ep[k] for k in keep}, **both, "infractions": counts}
+
+
+def _score(v) -> float | None:
+    """A stored per-scenario score rounded to 2 decimals; None when missing or not finite."""
+    if v is None or v == "" or isinstance(v, bool):
+        return None
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return None
+    return round(v, 2) if np.isfinite(v) else None
 
 
 def _stride(dt: float, period_s: float) -> int:
@@ -248,6 +282,7 @@ def episode_payload(trace, *, sensors: bool = True, bev_period_s: float = 0.2, l
     ep = {
         "id": trace.scenario_id, "policy": trace.policy, "status": str(row.get("status", "?")),
         "ds": None if ds is None or not np.isfinite(ds) else round(float(ds), 2),
+        "ds_all": _score(row.get("driving_score_all")), "ds_at_fault": _score(row.get("driving_score_at_fault")),
         "rc": row.get("route_completion"), "behavior": trace.meta.get("behavior"),
         "split": trace.meta.get("split"), "map_id": map_id, "reproduced": bool(trace.reproduced),
         "dt": float(trace.dt), "t0": float(times[0]), "n": n,

@@ -290,3 +290,45 @@ def test_policy_spec_with_make_policy_arguments_and_a_result_name(tmp_path):
                                            "policy = P(1.0, 'a')\n"))
     with pytest.raises(DriveE2EError, match="defines no make_policy"):
         load_policy(plain, gain=2.0)
+
+
+@pytest.mark.parametrize("flag, value, want", [
+    ("--collisions", "some", "drivee2e: error: --collisions: unknown collision mode 'some'; expected one of all, at_fault"),
+    ("--agents", "carla", "drivee2e: error: --agents: unknown agent model 'carla'; expected one of log, idm"),
+    ("--preset", "carla", "drivee2e: error: --preset: unknown scoring preset 'carla'; expected one of paper, "),
+])
+def test_bench_unknown_choice_is_one_line_listing_the_choices(suite_dir, tmp_path, capsys, flag, value, want):
+    """Checked before the suite loads or anything is written."""
+    out = tmp_path / "never"
+    assert _bench(suite_dir, out, flag, value) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(want), err
+    if flag == "--preset":
+        assert "nuplan" in err[0] and "navsim" in err[0]
+    assert not out.exists()
+
+
+def test_bench_help_explains_collisions_agents_and_the_new_presets(capsys):
+    assert main(["bench", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for s in ("--collisions", "at_fault", "--agents", "idm", "nuplan", "navsim",
+              "--preset nuplan --agents idm --collisions at_fault"):
+        assert s in text, s
+
+
+def test_bench_refuses_a_folder_of_another_collision_mode_or_agent_model(suite_dir, tmp_path, capsys, monkeypatch):
+    """A folder of the default settings refuses --collisions at_fault or
+    --agents idm in one line (the RunSpec keys differ)."""
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "run"
+    assert _bench(suite_dir, out, "--limit", "1") == 0
+    capsys.readouterr()
+    for flags, key in ((["--collisions", "at_fault"], "collisions"), (["--agents", "idm"], "agents")):
+        assert _bench(suite_dir, out, "--limit", "1", *flags) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "different run" in err[0] and key in err[0], err
+    # refused before anything was written: the folder still holds the first run only
+    # (--force clearing the old files: tests/eval/test_runspec.py)
+    assert "collisions" not in json.loads((out / "run.json").read_text())
+    rows = list(csv.DictReader((out / "scenarios.csv").open()))
+    assert len(rows) == 2 and "driving_score_at_fault" in rows[0]

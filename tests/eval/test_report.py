@@ -258,3 +258,40 @@ def test_infractions_per_km_and_no_plot_without_events(tmp_path):
 def report_rows(rows: list[dict]) -> list[dict]:
     """Rows as ``load_rows`` gives them (floats)."""
     return [{k: float(v) if isinstance(v, int | float) else v for k, v in r.items()} for r in rows]
+
+
+def test_ds_and_sr_both_ways_and_nuplan_means_in_the_comparison(tmp_path):
+    """A folder of this version (at_fault mode, preset nuplan): good's toy_0005
+    collision is not at fault, so at-fault-only it scores DS 100 (IS 1) and
+    succeeds; "(chosen)" marks the run's mode. bad has no attribution
+    columns (an older policy file): its cells are "–"."""
+    info = {**RUN_INFO, "preset": "nuplan", "collisions": "at_fault"}
+    pols = _policies()
+    for r in pols["good"]:
+        hit = r["scenario_id"] == "toy_0005"
+        r.update(driving_score_all=r["driving_score"], success_all=r["success"],
+                 infraction_score_all=r["infraction_score"], driving_score_at_fault=100.0 if hit else r["driving_score"],
+                 success_at_fault=True if hit else r["success"], infraction_score_at_fault=1.0 if hit else
+                 r["infraction_score"], collisions_at_fault=0, nuplan_score=0.5, nuplan_ego_progress=1.0)
+    run = tmp_path / "run"
+    cols = ["driving_score_all", "success_all", "infraction_score_all", "driving_score_at_fault", "success_at_fault",
+            "infraction_score_at_fault", "collisions_at_fault", "nuplan_score", "nuplan_ego_progress"]
+    atomic_write_json(run / "run.json", info)
+    atomic_write_json(run / "summary.json", summarize(pols, info))
+    atomic_write_text(run / "scenarios.csv", rows_to_csv([r for rs in pols.values() for r in rs], HEADER + cols))
+    md = report.write_report(run).read_text()
+    after = "## Policy comparison"
+    # good: DS all = (8 * 100 + 50 + 60) / 10 = 91; at fault: toy_0005 100 -> 95; SR 80 % / 90 %
+    assert _table_row(md, "DS, all collisions", after) == ["91.00", "–"]
+    assert _table_row(md, "DS, at-fault collisions only (chosen)", after) == ["95.00", "–"]
+    assert _table_row(md, "SR %, all collisions", after) == ["80.0", "–"]
+    assert _table_row(md, "SR %, at-fault collisions only (chosen)", after) == ["90.0", "–"]
+    assert _table_row(md, "nuPlan score ×100", after) == ["50.00", "–"]
+    assert _table_row(md, "nuplan_ego_progress (mean)", after) == ["1.000", "–"]
+    assert "collisions counted: **at_fault**" in md and "other agents: **log**" in md
+
+
+def test_a_folder_without_the_new_columns_has_no_attribution_rows(tmp_path):
+    md = report.write_report(_write_run(tmp_path / "run")).read_text()
+    assert "| DS, all collisions" not in md and "nuPlan score" not in md.split("## Legend")[0]
+    assert "collisions counted: **all**" in md  # an older run.json: the defaults

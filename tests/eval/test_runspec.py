@@ -224,3 +224,66 @@ def test_the_suite_fingerprint_covers_the_evaluated_arrays(suite_dir):
     xy[0, 0, 0, 0] += 0.01
     moved = dataclasses.replace(packed, scenario=packed.scenario.replace(tracks=packed.scenario.tracks.replace(xy=xy)))
     assert batch_sha256(moved) != h
+
+
+@pytest.mark.parametrize("kwargs, want", [
+    ({"collisions": "foo"}, "--collisions: unknown collision mode 'foo'; expected one of all, at_fault"),
+    ({"agents": "reactive"}, "--agents: unknown agent model 'reactive'; expected one of log, idm"),
+    ({"preset": "carla"}, "--preset: unknown scoring preset 'carla'; expected one of "),
+])
+def test_unknown_choices_are_one_line_listing_the_choices(kwargs, want):
+    with pytest.raises(DriveE2EError) as e:
+        RunSpec(**kwargs)
+    assert str(e.value).startswith(want) and "\n" not in str(e.value)
+
+
+def test_preset_error_lists_every_score_preset():
+    with pytest.raises(DriveE2EError) as e:
+        BenchConfig(preset="carla").run_spec()
+    listed = str(e.value).split("expected one of ")[1].split(", ")
+    assert listed == list(SCORE_PRESETS)
+
+
+def test_collisions_and_agents_round_trip_and_old_files_read_as_defaults():
+    """Written only when not the default (older run.json stay resumable and
+    compare equal); read back exactly; absent = all / log."""
+    base = RunSpec.from_json(OLD_RUN_JSON)
+    assert (base.collisions, base.agents) == ("all", "log")
+    assert base.to_json() == OLD_RUN_JSON  # defaults add no key
+    spec = dataclasses.replace(base, collisions="at_fault", agents="idm")
+    d = spec.to_json()
+    assert (d["collisions"], d["agents"]) == ("at_fault", "idm")
+    assert list(d)[: len(BASE_KEYS)] == BASE_KEYS
+    assert RunSpec.from_json(json.loads(json.dumps(d))) == spec
+    only = dataclasses.replace(base, agents="idm").to_json()
+    assert "collisions" not in only and only["agents"] == "idm"
+
+
+def test_sim_config_carries_collision_mode_and_agents():
+    """Needs the core's ScoreConfig.collision_mode and SimConfig.agents
+    (a TypeError until they land)."""
+    cfg = RunSpec(preset="lb21", collisions="at_fault", agents="idm").sim_config()
+    assert (cfg.score.name, cfg.score.collision_mode, cfg.agents) == ("lb21", "at_fault", "idm")
+    cfg = RunSpec().sim_config()
+    assert (cfg.score.collision_mode, cfg.agents) == ("all", "log")
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"collisions": "at_fault"}, "collisions"), ({"agents": "idm"}, "agents"), ({"preset": "lb21"}, "preset"),
+])
+def test_a_folder_of_another_collision_mode_agent_model_or_preset_is_refused(tmp_path, change, key):
+    """RunDir compares run.json key by key: another setting is one line naming
+    it, unless --force (which clears the old policy files: never mixed)."""
+    spec = RunSpec.from_json(OLD_RUN_JSON)
+    fp = {"fingerprint": {"suite_sha256": "s", "drivee2e_version": "x"}}
+    out = tmp_path / "run"
+    run = RunDir(out, {**spec.to_json(), **fp})
+    run.save_policy("p", [{"scenario_id": "a", "driving_score": 1.0}], {}, {})
+    run.close()
+    other = {**dataclasses.replace(spec, **change).to_json(), **fp}
+    with pytest.raises(DriveE2EError) as e:
+        RunDir(out, other)
+    assert f"differs in {key}" in str(e.value) and "--force" in str(e.value) and "\n" not in str(e.value)
+    RunDir(out, other, force=True).close()
+    assert not (out / "policies" / "p.json").exists()
+    assert json.loads((out / "run.json").read_text()).get(key) == other[key]

@@ -140,3 +140,77 @@ def test_abilities_without_junction_data_give_no_credit():
     s = summarize({"p": _ability_rows(junction=False)}, {"num_scenarios": 4})["policies"]["p"]["overall"]
     assert s["abilities"]["Traffic_Signs"] == 0.25 and s["abilities"]["mean"] == pytest.approx(1.25 / 3, abs=1e-6)
     assert s["abilities_junction_credit"] is False
+
+
+def _attributed_rows() -> list[dict]:
+    """4 scenarios; scenario 0 was rear-ended (a collision, not at fault: nuPlan
+    collision_utils ACTIVE_REAR), scenario 1 rear-ended a car (ACTIVE_FRONT,
+    at fault). With all collisions both score IS 0.6 (LB 2.0 vehicle
+    collision 0.6; DS = RC 100 x 0.6 = 60), at-fault only scenario 0 keeps
+    IS 1 (DS 100, success). Scenarios 2, 3: clean (DS 100) / RC 40."""
+    rows = _rows("p", 4, 3, lambda i: "STR")
+    ds_all, ds_af = (60.0, 60.0, 100.0, 40.0), (100.0, 60.0, 100.0, 40.0)
+    ok_all, ok_af = (False, False, True, False), (True, False, True, False)
+    for i, r in enumerate(rows):
+        r.update(driving_score_all=ds_all[i], driving_score_at_fault=ds_af[i], success_all=ok_all[i],
+                 success_at_fault=ok_af[i], infraction_score_all=ds_all[i] / (100.0 if i < 3 else 40.0),
+                 infraction_score_at_fault=ds_af[i] / (100.0 if i < 3 else 40.0),
+                 collisions_at_fault=int(i == 1), driving_score=ds_all[i], success=ok_all[i])
+    return rows
+
+
+def test_summary_gives_ds_and_sr_both_ways():
+    o = summarize({"p": _attributed_rows()}, {"num_scenarios": 4})["policies"]["p"]["overall"]
+    assert o["driving_score_all"] == pytest.approx((60 + 60 + 100 + 40) / 4)  # 65
+    assert o["driving_score_at_fault"] == pytest.approx((100 + 60 + 100 + 40) / 4)  # 75
+    assert (o["success_rate_all"], o["success_rate_at_fault"]) == (25.0, 50.0)
+    assert o["infraction_score_all"] == pytest.approx((0.6 + 0.6 + 1 + 1) / 4)
+    assert o["collisions_at_fault"] == 1
+
+
+def test_console_marks_the_chosen_collision_mode():
+    rows = _attributed_rows()
+    for mode, star in (("all", "DS*"), ("at_fault", "DS at-fault*")):
+        text = format_tables(summarize({"p": rows}, {"num_scenarios": 4, "collisions": mode}))
+        head = next(ln for ln in text.splitlines() if ln.startswith("collisions "))
+        assert star in head and head.count("*") == 2  # DS and SR of the chosen mode
+        line = text.splitlines()[text.splitlines().index(head) + 2]
+        assert line.split()[1:] == ["65.00", "75.00", "25.0", "50.0", "1"]
+
+
+def test_rows_without_the_new_columns_give_dashes_not_errors():
+    old = _rows("old", 3, 2, lambda i: "STR")
+    new = _attributed_rows()
+    s = summarize({"new": new, "old": old}, {"num_scenarios": 4})
+    assert "driving_score_all" not in s["policies"]["old"]["overall"]
+    assert "nuplan_score" not in s["policies"]["old"]["overall"]
+    text = format_tables(s)
+    line = next(ln for ln in text.splitlines() if ln.startswith("old ") and ln.split()[1] == "-")
+    assert line.split()[1:] == ["-"] * 5
+    assert "collisions" not in format_tables(summarize({"old": old}, {"num_scenarios": 3})).split("\n")[0]
+    assert not any(ln.startswith("collisions ") for ln in
+                   format_tables(summarize({"old": old}, {"num_scenarios": 3})).splitlines())
+
+
+def test_nuplan_and_navsim_scores_x100_and_sub_metric_means():
+    rows = _rows("p", 2, 2, lambda i: "STR")
+    rows[0].update(nuplan_score=0.5, nuplan_no_ego_at_fault_collisions=1.0, nuplan_ego_progress=0.25)
+    rows[1].update(nuplan_score=1.0, nuplan_no_ego_at_fault_collisions=0.5, nuplan_ego_progress=True)
+    o = summarize({"p": rows}, {"num_scenarios": 2})["policies"]["p"]["overall"]
+    assert o["nuplan_score"] == 75.0  # mean(0.5, 1.0) x 100
+    assert (o["nuplan_no_ego_at_fault_collisions"], o["nuplan_ego_progress"]) == (0.75, 0.625)
+    nav = _rows("q", 2, 2, lambda i: "STR")
+    nav[0].update(epdms=0.8, navsim_ttc="True")
+    nav[1].update(epdms=float("nan"), navsim_ttc="False")
+    s = summarize({"p": rows, "q": nav}, {"num_scenarios": 2})
+    q = s["policies"]["q"]["overall"]
+    assert (q["epdms"], q["navsim_ttc"]) == (80.0, 0.5)  # NaN scenario skipped
+    text = format_tables(s)
+    lines = text.splitlines()
+    head = lines.index(next(ln for ln in lines if ln.startswith("nuPlan score x100")))
+    assert lines[head].split()[-2:] == ["p", "q"]
+    assert lines[head + 2].split() == ["nuPlan", "score", "75.00", "-"]  # q has no nuPlan score
+    assert lines[head + 3].split() == ["ego_progress", "0.625", "-"]
+    assert lines[head + 4].split() == ["no_ego_at_fault_collisions", "0.750", "-"]
+    epd = lines.index(next(ln for ln in lines if ln.startswith("EPDMS x100")))
+    assert lines[epd + 2].split() == ["EPDMS", "-", "80.00"] and lines[epd + 3].split() == ["ttc", "-", "0.500"]

@@ -344,3 +344,21 @@ def test_cli_errors_are_one_line(run_dir, tmp_path, capsys, args, message):
 def test_cli_rejects_a_folder_that_is_not_a_run(tmp_path, capsys):
     assert main(["export-mcap", str(tmp_path), "--out", str(tmp_path / "x.mcap")]) == 2
     assert "not a drivee2e results folder" in capsys.readouterr().err
+
+
+def test_collision_event_log_names_type_and_fault_and_metadata_carries_both_ds():
+    tr = SimpleNamespace(scenario_id="s0", policy="p", num_steps=10, driving_score=60.0, stored_driving_score=60.0,
+                         row={"driving_score_all": 60.0, "driving_score_at_fault": 100.0, "collisions_at_fault": 0})
+    ev = {"type": "collisions_vehicle", "t": 1.5, "x": 1.0, "collision_type": "active_rear", "at_fault": False}
+    msg = mx.infraction_log(tr, ev, 0).message
+    assert msg.startswith("collisions_vehicle at t=1.5 s [active_rear, not at fault] (")
+    assert "collision_type=active_rear" in msg and "at_fault=False" in msg
+    lay = {"type": "collisions_layout", "t": 2.0, "collision_type": "static", "at_fault": True}
+    assert mx.infraction_log(tr, lay, 0).message.startswith("collisions_layout at t=2.0 s [static, at fault] (")
+    assert mx.infraction_log(tr, {"type": "red_light", "t": 1.0}, 0).message.startswith("red_light at t=1.0 s")
+    md = mx.episode_metadata(tr, 5)
+    assert (md["driving_score_all"], md["driving_score_at_fault"], md["collisions_at_fault"]) == (
+        "60.0000", "100.0000", "0")
+    assert all(isinstance(v, str) for v in md.values()) and md["offset_ns"] == "5"
+    old = mx.episode_metadata(SimpleNamespace(**{**vars(tr), "row": {"driving_score": 60.0}}), 0)
+    assert "driving_score_all" not in old and old["driving_score"] == "60.0000"

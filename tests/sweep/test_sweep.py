@@ -246,3 +246,44 @@ def test_a_second_sweep_on_a_locked_folder_is_refused_in_one_line(tiny_config, t
         with pytest.raises(DriveE2EError, match=r"locked: in use by another run .*drivee2e sweep first.*--out"):
             run_sweep(with_out(load_config(tiny_config), out), progress=False, print_fn=lambda s: None)
     assert sorted(p.name for p in out.iterdir()) == [".lock"]
+
+
+@pytest.mark.parametrize("extra, expect", [
+    ("[sim]\ncollisions = [\"all\", \"some\"]\n",
+     "[sim] collisions: unknown collision mode 'some' (expected one of: all, at_fault)"),
+    ("[sim]\nagents = \"reactive\"\n", "[sim] agents: unknown agent model 'reactive' (expected one of: log, idm)"),
+    ("[sim]\npreset = \"carla\"\n", "[sim] preset: unknown preset 'carla' (expected one of: paper,"),
+])
+def test_bad_collision_mode_agent_model_or_preset_is_one_line(tmp_path, extra, expect):
+    with pytest.raises(DriveE2EError) as e:
+        _load(tmp_path, BASE + extra)
+    assert expect in str(e.value) and "\n" not in str(e.value)
+
+
+def test_collisions_and_agents_are_grid_axes_passed_to_bench(tmp_path):
+    from drivee2e_jax.sweep.runner import bench_config
+
+    cfg = _load(tmp_path, BASE + '[sim]\ncollisions = ["all", "at_fault"]\nagents = ["log", "idm"]\n')
+    runs = expand(cfg)
+    assert [r.run_id for r in runs] == ["twin15-val", "twin15-val-agents_idm", "twin15-val-coll_at_fault",
+                                        "twin15-val-coll_at_fault-agents_idm"]
+    b = bench_config(cfg, runs[-1], tmp_path / "r")
+    assert (b.collisions, b.agents) == ("at_fault", "idm")
+    assert (b.run_spec().collisions, b.run_spec().agents) == ("at_fault", "idm")
+
+
+def test_an_older_sweep_json_without_collisions_or_agents_still_resumes(tmp_path):
+    from drivee2e_jax.sweep.runner import start
+
+    cfg = _load(tmp_path, BASE)
+    runs = expand(cfg)
+    out = tmp_path / "out"
+    out.mkdir()
+    rec = cfg.to_json()
+    for k in ("collisions", "agents"):
+        del rec["sim"][k]
+    (out / "sweep.json").write_text(json.dumps({"config": rec, "runs": [r.run_id for r in runs]}))
+    start(out, cfg, runs, force=False)  # reads as all / log: the same config
+    other = _load(tmp_path, BASE + '[sim]\nagents = "idm"\n')
+    with pytest.raises(DriveE2EError, match=r"differs in sim\.agents"):
+        start(out, other, expand(other), force=False)

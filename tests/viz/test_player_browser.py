@@ -179,7 +179,7 @@ def test_index_filters_and_sorts(synthetic, browser):
     page.select_option("#f-infraction", "*")
     assert _column(page, 2) == ["s1", "s2"] and "5 of" not in page.inner_text("#count")
     page.select_option("#f-infraction", "collisions_vehicle")
-    assert _column(page, 2) == ["s1"] and "collisions_vehicle" in _column(page, 7)[0]
+    assert _column(page, 2) == ["s1"] and "collisions_vehicle" in _column(page, 9)[0]  # after DS, DS all, DS at-fault, RC, behaviour
     page.select_option("#f-infraction", "-")
     assert _column(page, 2) == ["s0", "s0", "s1"]
     page.select_option("#f-infraction", "")

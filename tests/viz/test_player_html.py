@@ -190,3 +190,31 @@ def test_palette_index_from_packed_bits_is_the_last_lit_channel(num):
     index = encode.bev_index_from_bits(bits, num)
     np.testing.assert_array_equal(index, encode.bev_index(planes))
     assert index[0, 0, 0] == 0 and index.max() <= num
+
+
+def test_ds_both_ways_and_collision_type_and_fault_in_the_payload(tmp_path):
+    """The index row and the episode carry DS with all / at-fault collisions
+    (from the stored row); collision events carry their nuPlan type and
+    fault as stored plus the label the event list shows; older rows / events
+    without them give null / no label. The page shows both (template)."""
+    from drivee2e_jax.viz.payload import collision_label, episode_payload, index_entry
+
+    events = [{"type": "collisions_vehicle", "t": 0.5, "x": 0.0, "y": 0.0, "collision_type": "active_rear",
+               "at_fault": False},
+              {"type": "collisions_layout", "t": 1.0, "x": 1.0, "y": 0.0, "collision_type": "static",
+               "at_fault": True},
+              {"type": "red_light", "t": 1.5, "x": 2.0, "y": 0.0}]
+    tr = _trace(events=events, ds=60.0)
+    tr.row.update(driving_score_all=60.0, driving_score_at_fault=100.0)
+    ep, _, _ = episode_payload(tr, sensors=False)
+    assert (ep["ds"], ep["ds_all"], ep["ds_at_fault"]) == (60.0, 60.0, 100.0)
+    row = index_entry(ep, "e00000")
+    assert (row["ds_all"], row["ds_at_fault"]) == (60.0, 100.0)
+    assert [e.get("fault") for e in ep["events"]] == ["active_rear, not at fault", "static, at fault", None]
+    assert ep["events"][0]["collision_type"] == "active_rear" and ep["events"][0]["at_fault"] is False
+    assert collision_label({"type": "collisions_vehicle"}) is None
+    old, _, _ = episode_payload(_trace(), sensors=False)
+    assert (old["ds_all"], old["ds_at_fault"]) == (None, None)
+    assert index_entry({k: v for k, v in old.items() if k not in ("ds_all", "ds_at_fault")}, "e0")["ds_all"] is None
+    page = write_player([tr], tmp_path / "p.html").read_text(encoding="utf-8")
+    assert 'data-key="ds_at_fault"' in page and "e.fault" in page
