@@ -125,6 +125,11 @@ class IDMState:
       on_log: (A,) bool the agent sits exactly on its log (``s = s_log(t)``,
         ``v`` = logged speed) and replays it; a flag rather than a float
         comparison, so float32 time round-off never makes an agent "lag".
+      k: (A,) int32 the logged-path segment [k, k + 1] holding ``s``
+        (``arc[k] <= s``); k0: (A,) int32 the last valid sample at or before
+        k (where the segment starts when k falls in a gap). Tracked
+        incrementally (``advance_segment``), so placing an agent costs a few
+        gathers instead of a search over the whole log.
       agents: ``replay.AgentStates`` (A, ...) of every row at the state's
         time (``agents_at`` of this state; kept so a step computes the
         agents once: the simulator reads them from here).
@@ -135,6 +140,8 @@ class IDMState:
     v0: Array
     active: Array
     on_log: Array
+    k: Array
+    k0: Array
     agents: AgentStates
 
 
@@ -183,23 +190,42 @@ def arc_at(arc: Array, t: Array, dt_log: Array) -> Array:
     return arc[:, k] + r * (arc[:, k1] - arc[:, k])
 
 
-def _pose_on_path(xy, yaw, valid, arc, s):
-    """One agent: xy (T,2), yaw (T,), valid (T,), arc (T,), s () -> (xy (2,),
-    yaw ()) at arc s on the logged path.
+#: Log samples a path segment may advance in one step (``advance_segment``).
+#: A lagging agent moves at most ``v0 dt`` per step; it crosses more than 8
+#: samples only where the log crawled (samples < v0 dt / 8 apart: < 0.19 m at
+#: 15 m/s and 0.1 s) and then reaches its true segment over the next steps
+#: (placed at the window's end meanwhile). 8 rather than 16: a third of the
+#: IDM step's cost went into this window's gathers.
+SEGMENT_WINDOW = 8
 
-    The segment holding s runs from the last valid sample at or before k to
-    sample k+1. When sample k is invalid (a gap) that start is found as the
-    first sample with arc == arc[k]: the arc grows only at valid samples, so
-    every valid sample of that run sits at the same position. Two binary
-    searches, no (T,) scan (``jax.lax.cummax`` is slow on CPU).
-    """
-    num_steps = arc.shape[0]
-    k = jnp.searchsorted(arc, s, side="right", method="compare_all") - 1
-    k = jnp.clip(k, 0, max(num_steps - 2, 0))
-    k1 = jnp.minimum(k + 1, num_steps - 1)
-    j = jnp.clip(jnp.searchsorted(arc, arc[k], side="left", method="compare_all"), 0, num_steps - 1)
-    i0 = jnp.where(valid[k], k, jnp.where(valid[j], j, k1))
-    p0, y0 = xy[i0], yaw[i0]
+
+def time_segment(t: Array, dt_log: Array, num_steps: int) -> Array:
+    """() int32 the log interval [k, k + 1] holding time ``t`` (clipped to [0, T - 2])."""
+    return jnp.clip(jnp.floor(t / dt_log + 1e-4), 0, max(num_steps - 2, 0)).astype(jnp.int32)
+
+
+def advance_segment(k: Array, k0: Array, s: Array, arc: Array, valid: Array) -> tuple[Array, Array]:
+    """(k, k0) moved forward to the segment holding arc ``s`` (A,), looking at
+    most ``SEGMENT_WINDOW`` samples past ``k``: ``arc`` (A, T) is
+    non-decreasing, so the samples with ``arc <= s`` in the window are a
+    prefix; ``k0`` becomes the last valid one of them (or stays)."""
+    num_steps = arc.shape[-1]
+    win = k[:, None] + 1 + jnp.arange(SEGMENT_WINDOW)  # (A, W) candidate segment starts
+    idx = jnp.minimum(win, num_steps - 1)
+    passed = (win <= num_steps - 2) & (jnp.take_along_axis(arc, idx, axis=-1) <= s[:, None])
+    k_new = k + passed.sum(axis=-1, dtype=jnp.int32)
+    valid_w = jnp.take_along_axis(valid, idx, axis=-1)
+    k0_new = jnp.maximum(k0, jnp.max(jnp.where(passed & valid_w, win, -1), axis=-1))
+    return k_new.astype(jnp.int32), k0_new.astype(jnp.int32)
+
+
+def _pose_on_segment(xy, yaw, valid, arc, s, k, k0):
+    """One agent: xy (T,2), yaw (T,), valid (T,), arc (T,), s (), segment k
+    and its valid start k0 (``IDMState``) -> (xy (2,), yaw ()) at arc s on the
+    logged path. In a gap (k invalid) the arc does not grow, so the segment
+    starts at the last valid sample k0."""
+    k1 = k + 1
+    p0, y0 = xy[k0], yaw[k0]
     p1 = jnp.where(valid[k1], xy[k1], p0)
     y1 = jnp.where(valid[k1], yaw[k1], y0)
     d = arc[k1] - arc[k]
@@ -236,8 +262,10 @@ def init(tracks: Tracks, dt_log: Array, params: IDMParams = IDMParams(), *, ego_
     log = replay.agents_at(tracks, jnp.zeros((), jnp.float32), dt_log)
     v = jnp.where(log.valid, jnp.linalg.norm(log.vel, axis=-1), 0.0)
     s = jnp.zeros(tracks.category.shape, jnp.float32)
+    first = jnp.argmax(tracks.valid, axis=-1).astype(jnp.int32)
     return IDMState(s=s, v=v.astype(jnp.float32), v0=desired_speed(tracks, params),
-                    active=reactive_mask(tracks, ego_index), on_log=jnp.ones(s.shape, bool), agents=log)
+                    active=reactive_mask(tracks, ego_index), on_log=jnp.ones(s.shape, bool),
+                    k=jnp.zeros(s.shape, jnp.int32), k0=first, agents=log)
 
 
 # --------------------------------------------------------------------------
@@ -262,7 +290,7 @@ def agents_at(state: IDMState, tracks: Tracks, arc: Array, t: Array, dt_log: Arr
 def _placed(state: IDMState, tracks: Tracks, arc: Array, log: AgentStates) -> AgentStates:
     """``agents_at`` given the log's agents at that time (``log``)."""
     lagging = state.active & ~state.on_log
-    xy, yaw = jax.vmap(_pose_on_path)(tracks.xy, tracks.yaw, tracks.valid, arc, state.s)
+    xy, yaw = jax.vmap(_pose_on_segment)(tracks.xy, tracks.yaw, tracks.valid, arc, state.s, state.k, state.k0)
     vel = state.v[:, None] * jnp.stack([jnp.cos(yaw), jnp.sin(yaw)], axis=-1)
     return AgentStates(
         xy=jnp.where(lagging[:, None], xy, log.xy),
@@ -360,7 +388,12 @@ def step(state: IDMState, tracks: Tracks, arc: Array, t: Array, dt: float | Arra
     reached = (s_idm >= s_log1) | follow_log
     s_new = jnp.where(reached, s_log1, s_new)
     v_new = jnp.where(reached, v_log1, v_idm)
-    new = state.replace(s=s_new.astype(jnp.float32), v=v_new.astype(jnp.float32), on_log=reached)
+    # The segment holding the new s: an agent on its log at t starts the
+    # search from t's log interval (valid there, or it follows the log).
+    kt = time_segment(t, dt_log, arc.shape[-1])
+    k, k0 = advance_segment(jnp.where(on_log, kt, state.k), jnp.where(on_log, kt, state.k0), s_new, arc,
+                            tracks.valid)
+    new = state.replace(s=s_new.astype(jnp.float32), v=v_new.astype(jnp.float32), on_log=reached, k=k, k0=k0)
     return new.replace(agents=_placed(new, tracks, arc, nxt))
 
 

@@ -184,3 +184,47 @@ def test_gradient_through_the_leader_gap():
 
     g = float(jax.grad(final_x)(jnp.float32(40.0)))
     assert math.isfinite(g) and 0.0 < g < 2.0, g
+
+
+def test_the_tracked_path_segment_places_agents_as_an_exact_search_does():
+    """``advance_segment`` + ``_pose_on_segment`` (a windowed search carried
+    from step to step) against an exact numpy search over the whole path, on
+    a path with a gap and a stationary run: exact while a step crosses at most
+    ``SEGMENT_WINDOW`` samples, and a longer jump is caught up over the next
+    steps (one window per step)."""
+    rng = np.random.default_rng(0)
+    t_len = 80
+    steps = rng.uniform(0.5, 1.5, t_len)
+    steps[0] = 0.0
+    steps[20:25] = 0.0  # stationary in the log: 5 samples at one place
+    xy = np.stack([np.cumsum(steps), np.zeros(t_len)], -1).astype(np.float32)
+    valid = np.ones(t_len, bool)
+    valid[40:44] = False  # a gap
+    tracks = Tracks(
+        xy=jnp.asarray(xy[None]), yaw=jnp.zeros((1, t_len)), vel=jnp.zeros((1, t_len, 2)),
+        size=jnp.asarray([[4.5, 2.0, 1.5]]), valid=jnp.asarray(valid[None]),
+        category=jnp.asarray([Category.CAR]), track_id=jnp.asarray([7]),
+        visible=jnp.asarray(valid[None]), quality=jnp.asarray(valid[None]),
+    )
+    arc = np.asarray(reactive.path_arc(tracks))[0]
+    k, k0 = jnp.zeros((1,), jnp.int32), jnp.zeros((1,), jnp.int32)
+
+    def place(s, k, k0):
+        k, k0 = reactive.advance_segment(k, k0, jnp.asarray([s], jnp.float32), jnp.asarray(arc[None]),
+                                         jnp.asarray(valid[None]))
+        got, _ = reactive._pose_on_segment(tracks.xy[0], tracks.yaw[0], tracks.valid[0], jnp.asarray(arc), s,
+                                           k[0], k0[0])
+        return float(got[0]), k, k0
+
+    def exact(s):  # the valid samples' polyline interpolated at arc s
+        return float(np.interp(s, arc[valid], xy[valid, 0]))
+
+    s = 0.0
+    while s < 40.0:  # <= 1.5 m a step: at most 3 samples + the stationary run crossed at once
+        s += float(rng.uniform(0.0, 1.5))
+        got, k, k0 = place(s, k, k0)
+        np.testing.assert_allclose(got, exact(s), atol=1e-3)
+    s += 20.0  # ~20 samples in one step: behind at first, exact after ceil(20 / 8) steps
+    for _ in range(3):
+        got, k, k0 = place(s, k, k0)
+    np.testing.assert_allclose(got, exact(s), atol=1e-3)
