@@ -174,12 +174,12 @@ def plot(overall: list[dict], path: Path) -> None:
     real = [r["failed_all"] - r["artifacts"] for r in overall]
     x = range(len(names))
     ax.bar(x, real, color="#7f7f7f", label="fails in every view")
-    ax.bar(x, b_only, bottom=real, color="#1f77b4", label="passes at-fault only (b)")
+    ax.bar(x, b_only, bottom=real, color="#1f77b4", label="passes when only at-fault collisions count (b)")
     ax.bar(x, c_extra, bottom=[a + b for a, b in zip(real, b_only)], color="#ff7f0e",
-           label="passes with IDM agents (c), not (b)")
+           label="passes with IDM agents (c), not under (b)")
     ax.set_xticks(list(x), names, rotation=20, ha="right")
     ax.set_ylabel("failed episodes under (a)")
-    ax.legend(fontsize=8, frameon=False)
+    ax.legend(fontsize=8, frameon=False, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
