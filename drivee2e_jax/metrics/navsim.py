@@ -402,14 +402,15 @@ def history_comfort(lon_accel, lat_accel, heading, dt: float) -> float:
     return 1.0 if ok else 0.0
 
 
-def _ec_features(xy, yaw0: float, dt: float) -> dict[str, np.ndarray]:
-    """C ``extract_features`` on positions ``xy (n, 2)`` sampled at ``dt``:
-    acceleration magnitude, jerk, yaw rate, yaw acceleration (heading from
-    the velocity; ``yaw0`` where the plan stands still)."""
-    vel = np.gradient(xy, dt, axis=0)
-    acc = np.gradient(vel, dt, axis=0)
+def _ec_features(xy, yaw0, dt: float) -> dict[str, np.ndarray]:
+    """C ``extract_features`` on positions ``xy (..., n, 2)`` sampled at
+    ``dt``: acceleration magnitude, jerk, yaw rate, yaw acceleration, each
+    (..., n) (heading from the velocity; ``yaw0`` (...,) where the plan
+    stands still). Leading axes: several plans at once."""
+    vel = np.gradient(xy, dt, axis=-2)
+    acc = np.gradient(vel, dt, axis=-2)
     moving = np.linalg.norm(vel, axis=-1) > 1e-3
-    heading = np.where(moving, np.arctan2(vel[:, 1], vel[:, 0]), yaw0)
+    heading = np.where(moving, np.arctan2(vel[..., 1], vel[..., 0]), np.asarray(yaw0, np.float64)[..., None])
     mag = np.round(_smooth(np.linalg.norm(acc, axis=-1), 8, 2), 8)
     return {
         "acceleration": mag,
@@ -419,14 +420,33 @@ def _ec_features(xy, yaw0: float, dt: float) -> dict[str, np.ndarray]:
     }
 
 
-def _plan_spline(plan, pose_xy, pose_yaw, plan_dt: float) -> CubicSpline:
-    """World-frame cubic spline tau -> xy of a plan (ego-frame waypoints
-    ``plan (N, 2)`` at tau = plan_dt, 2 plan_dt, ...; the ego at tau = 0, as
-    E ``transform_trajectory`` prepends the initial state)."""
-    pts = np.concatenate([np.zeros((1, 2)), np.asarray(plan, np.float64)])
-    c, s = math.cos(pose_yaw), math.sin(pose_yaw)
-    world = pts @ np.array([[c, s], [-s, c]]) + np.asarray(pose_xy, np.float64)
-    return CubicSpline(np.arange(len(pts)) * plan_dt, world, axis=0)
+def _plan_spline(plans, poses_xy, poses_yaw, plan_dt: float) -> CubicSpline:
+    """World-frame cubic splines tau -> xy of P plans at once (ego-frame
+    waypoints ``plans (P, N, 2)`` at tau = plan_dt, 2 plan_dt, ...; the ego
+    at tau = 0, as E ``transform_trajectory`` prepends the initial state;
+    poses ``(P, 2)``, ``(P,)``): evaluated at ``tau (n,)`` -> (P, n, 2)."""
+    plans = np.asarray(plans, np.float64)
+    pts = np.concatenate([np.zeros(plans.shape[:-2] + (1, 2)), plans], axis=-2)
+    c, s = np.cos(poses_yaw)[..., None], np.sin(poses_yaw)[..., None]
+    world = np.stack([c * pts[..., 0] - s * pts[..., 1], s * pts[..., 0] + c * pts[..., 1]], axis=-1)
+    world = world + np.asarray(poses_xy, np.float64)[..., None, :]
+    return CubicSpline(np.arange(pts.shape[-2]) * plan_dt, world, axis=-2)
+
+
+def _two_frame_batch(prev_plans, prev_xy, prev_yaw, cur_plans, cur_xy, cur_yaw, dt: float,
+                     plan_dt: float) -> np.ndarray:
+    """``two_frame_comfort`` of P plan pairs at once -> (P,) float in {0, 1}."""
+    horizon = cur_plans.shape[-2] * plan_dt
+    tau = np.arange(0.0, horizon - dt + 1e-9, EC_SAMPLE_S)
+    if len(tau) < 3:
+        return np.ones(len(cur_plans))
+    f_prev = _ec_features(_plan_spline(prev_plans, prev_xy, prev_yaw, plan_dt)(tau + dt), prev_yaw, EC_SAMPLE_S)
+    f_cur = _ec_features(_plan_spline(cur_plans, cur_xy, cur_yaw, plan_dt)(tau), cur_yaw, EC_SAMPLE_S)
+    limits = {"acceleration": EC_ACCEL, "jerk": EC_JERK, "yaw_rate": EC_YAW_RATE, "yaw_accel": EC_YAW_ACCEL}
+    ok = np.ones(len(cur_plans), bool)
+    for k, lim in limits.items():
+        ok &= np.sqrt(np.mean((f_cur[k] - f_prev[k]) ** 2, axis=-1)) <= lim
+    return ok.astype(np.float64)
 
 
 def two_frame_comfort(prev_plan, prev_pose, cur_plan, cur_pose, dt: float, plan_dt: float = PLAN_DT_S) -> float:
@@ -439,15 +459,9 @@ def two_frame_comfort(prev_plan, prev_pose, cur_plan, cur_pose, dt: float, plan_
     (xy (2,), yaw) of the ego each plan was made from. Overlaps of < 3
     samples pass.
     """
-    horizon = len(cur_plan) * plan_dt
-    tau = np.arange(0.0, horizon - dt + 1e-9, EC_SAMPLE_S)
-    if len(tau) < 3:
-        return 1.0
-    f_prev = _ec_features(_plan_spline(prev_plan, *prev_pose, plan_dt)(tau + dt), prev_pose[1], EC_SAMPLE_S)
-    f_cur = _ec_features(_plan_spline(cur_plan, *cur_pose, plan_dt)(tau), cur_pose[1], EC_SAMPLE_S)
-    limits = {"acceleration": EC_ACCEL, "jerk": EC_JERK, "yaw_rate": EC_YAW_RATE, "yaw_accel": EC_YAW_ACCEL}
-    ok = all(np.sqrt(np.mean((f_cur[k] - f_prev[k]) ** 2)) <= lim for k, lim in limits.items())
-    return 1.0 if ok else 0.0
+    one = lambda a: np.asarray(a, np.float64)[None]  # noqa: E731
+    return float(_two_frame_batch(one(prev_plan), one(prev_pose[0]), one(prev_pose[1]), one(cur_plan),
+                                  one(cur_pose[0]), one(cur_pose[1]), dt, plan_dt)[0])
 
 
 def extended_comfort(active, plans, poses_xy, poses_yaw, dt: float, plan_dt: float = PLAN_DT_S) -> float:
@@ -456,19 +470,11 @@ def extended_comfort(active, plans, poses_xy, poses_yaw, dt: float, plan_dt: flo
     ``poses_yaw (T,)``: the ego pose each plan was made from (start of the
     step). No pair: 1."""
     act = np.asarray(active, bool)
-    vals = [
-        two_frame_comfort(
-            plans[k - 1],
-            (poses_xy[k - 1], float(poses_yaw[k - 1])),
-            plans[k],
-            (poses_xy[k], float(poses_yaw[k])),
-            dt,
-            plan_dt,
-        )
-        for k in range(1, len(act))
-        if act[k] and act[k - 1]
-    ]
-    return float(np.mean(vals)) if vals else 1.0
+    k = np.flatnonzero(act[1:] & act[:-1]) + 1  # every pair (k - 1, k) in one batch
+    if not len(k):
+        return 1.0
+    plans, xy, yaw = np.asarray(plans, np.float64), np.asarray(poses_xy, np.float64), np.asarray(poses_yaw, np.float64)
+    return float(np.mean(_two_frame_batch(plans[k - 1], xy[k - 1], yaw[k - 1], plans[k], xy[k], yaw[k], dt, plan_dt)))
 
 
 def _logged_ego_at(scenario: Any, t: float) -> tuple[np.ndarray, float]:

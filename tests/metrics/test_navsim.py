@@ -339,3 +339,25 @@ def test_epdms_worked_case():
     sub = dict(nc=1.0, dac=1.0, ddc=1.0, tlc=1.0, ep=1.0, ttc=1.0, lk=0.0, hc=0.0, ec=1.0)
     assert navsim.epdms(sub) == pytest.approx(12 / 16)
     assert navsim.epdms({**sub, "nc": 0.5}) == pytest.approx(6 / 16)
+
+
+def test_extended_comfort_of_a_whole_episode_is_the_mean_over_its_plan_pairs():
+    """``extended_comfort`` scores every consecutive pair of an episode in one
+    batch; it must equal the mean of ``two_frame_comfort`` taken pair by pair
+    (plans of a car at 10 m/s with growing noise: pass rates between 0 and 1)."""
+    rng = np.random.default_rng(1)
+    t_len, n = 60, 8
+    base = np.stack([5.0 * np.arange(1, n + 1), np.zeros(n)], -1)
+    xy = np.stack([np.arange(t_len) * 1.0, np.zeros(t_len)], -1)
+    yaw = np.zeros(t_len)
+    active = np.ones(t_len, bool)
+    active[30] = False  # no pair across an inactive step
+    rates = []
+    for noise in (0.0, 0.01, 0.02):
+        plans = base[None] + rng.normal(0.0, noise, (t_len, n, 2))
+        pairs = [navsim.two_frame_comfort(plans[k - 1], (xy[k - 1], yaw[k - 1]), plans[k], (xy[k], yaw[k]), 0.1)
+                 for k in range(1, t_len) if active[k] and active[k - 1]]
+        got = navsim.extended_comfort(active, plans, xy, yaw, 0.1)
+        assert got == pytest.approx(float(np.mean(pairs)), abs=1e-12)
+        rates.append(got)
+    assert rates[0] == 1.0 and 0.0 < min(rates[1:]) < 1.0  # the case exercises both outcomes
