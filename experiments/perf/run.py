@@ -7,7 +7,11 @@ Configurations (``--configs``, default both):
 
 * ``state_only`` = dynamics + replay + infractions + criteria + vector
   observations with the ``log_replay`` policy, at batch sizes B (default 1,
-  64, 800 scenarios of the suite);
+  64, 800 scenarios of the suite). ``log_replay`` reads only the privileged
+  log controls, so XLA leaves the rest of the observation out;
+* ``state_obs`` (not in the default) = ``state_only`` with a policy that also
+  reads every vector-observation leaf: the closed loop including the
+  observation;
 * ``sweep_bev_lidar`` = the whole suite (800 episodes x the episode length,
   ``Simulator.episode_steps``: 200 steps of 0.1 s on twin15) with
   the 128 x 128 BEV and the 64 x 360 LiDAR on and a small MLP policy reading
@@ -38,12 +42,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _setup(suite: str, batch: int, chunk: int):
+def _setup(suite: str, batch: int, chunk: int, reads_obs: bool = False):
     import jax
     import jax.numpy as jnp
 
     from drivee2e_jax.policy import load_policy
-    from drivee2e_jax.rollout import Rollout
+    from drivee2e_jax.rollout import LogReplay, Rollout
     from drivee2e_jax.scenario import load_suite
     from drivee2e_jax.sim import SimConfig, Simulator
 
@@ -52,6 +56,20 @@ def _setup(suite: str, batch: int, chunk: int):
     rows = [i % n for i in range(batch)]
     scn = jax.tree_util.tree_map(jnp.asarray, packed.select(rows).scenario)
     pol = load_policy(ROOT / "drivee2e_jax" / "zoo" / "log_replay.py")
+    if reads_obs:
+        class ReadsObservation(LogReplay):
+            """``log_replay`` that also reads every vector-observation leaf (adds 0 x their sum
+            to the throttle), so XLA cannot leave the observation out of the step."""
+
+            name = "log_replay_reads_obs"
+
+            def act(self, params, obs, state, key):
+                c, state = super().act(params, obs, state, key)
+                total = sum(jnp.sum(jnp.asarray(x, jnp.float32))
+                            for x in jax.tree_util.tree_leaves(obs.replace(privileged=None)))
+                return c.replace(throttle=c.throttle + 0.0 * total), state
+
+        pol = ReadsObservation()
     ro = Rollout(Simulator(SimConfig()), pol, None, chunk=chunk)
     return ro, scn
 
@@ -73,11 +91,11 @@ def compile_probe(suite: str, batch: int, chunk: int) -> dict:
     return {"compile_init_s": t1 - t0, "compile_s": t2 - t1}
 
 
-def measure(suite: str, batch: int, chunk: int, steps: int | None) -> dict:
+def measure(suite: str, batch: int, chunk: int, steps: int | None, reads_obs: bool = False) -> dict:
     import jax
     import numpy as np
 
-    ro, scn = _setup(suite, batch, chunk)
+    ro, scn = _setup(suite, batch, chunk, reads_obs)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     carry = ro.init(scn, keys)
     carry, _ = ro.advance(scn, carry)  # warm-up: compile
@@ -263,15 +281,17 @@ def main(argv=None) -> int:
 
     load_suite(args.suite).pack(None)  # build the suite cache outside the timings
     configs = args.configs.split(",")
-    for b in batches if "state_only" in configs else ():
-        row = {"config": "state_only", "suite": args.suite}
-        if not args.no_compile:
+    state_configs = [c for c in ("state_only", "state_obs") if c in configs]
+    for config, b in ((c, b) for c in state_configs for b in batches):
+        row = {"config": config, "suite": args.suite}
+        if not args.no_compile and config == "state_only":
             with tempfile.TemporaryDirectory() as cache:
                 cold = _probe_subprocess(args.suite, b, args.chunk, cache)
                 warm = _probe_subprocess(args.suite, b, args.chunk, cache)
             row.update(compile_s=round(cold["compile_s"] + cold["compile_init_s"], 3),
                        compile_cached_s=round(warm["compile_s"] + warm["compile_init_s"], 3))
-        row.update({k: (round(v, 3) if isinstance(v, float) else v) for k, v in measure(args.suite, b, args.chunk, args.steps).items()})
+        m = measure(args.suite, b, args.chunk, args.steps, reads_obs=config == "state_obs")
+        row.update({k: (round(v, 3) if isinstance(v, float) else v) for k, v in m.items()})
         row["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
         row["cores"] = os.cpu_count()
         if args.json:
