@@ -42,12 +42,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _setup(suite: str, batch: int, chunk: int, reads_obs: bool = False):
+def _setup(suite: str, batch: int, chunk: int, reads_obs: bool = False, config=None):
+    """(Rollout of ``log_replay`` under ``config`` (default ``SimConfig()``), the first ``batch``
+    scenarios of ``suite`` cycled). The policy is found by name, so the code measured is that of
+    whichever ``drivee2e_jax`` is imported (``scoring_views.py`` times another checkout this way)."""
     import jax
     import jax.numpy as jnp
 
-    from drivee2e_jax.policy import load_policy
-    from drivee2e_jax.rollout import LogReplay, Rollout
+    from drivee2e_jax.policy import load_policy, resolve_policy_path
+    from drivee2e_jax.rollout import Rollout
     from drivee2e_jax.scenario import load_suite
     from drivee2e_jax.sim import SimConfig, Simulator
 
@@ -55,8 +58,10 @@ def _setup(suite: str, batch: int, chunk: int, reads_obs: bool = False):
     n = len(packed.meta)
     rows = [i % n for i in range(batch)]
     scn = jax.tree_util.tree_map(jnp.asarray, packed.select(rows).scenario)
-    pol = load_policy(ROOT / "drivee2e_jax" / "zoo" / "log_replay.py")
+    pol = load_policy(resolve_policy_path("log_replay"))
     if reads_obs:
+        from drivee2e_jax.rollout import LogReplay
+
         class ReadsObservation(LogReplay):
             """``log_replay`` that also reads every vector-observation leaf (adds 0 x their sum
             to the throttle), so XLA cannot leave the observation out of the step."""
@@ -70,7 +75,7 @@ def _setup(suite: str, batch: int, chunk: int, reads_obs: bool = False):
                 return c.replace(throttle=c.throttle + 0.0 * total), state
 
         pol = ReadsObservation()
-    ro = Rollout(Simulator(SimConfig()), pol, None, chunk=chunk)
+    ro = Rollout(Simulator(config or SimConfig()), pol, None, chunk=chunk)
     return ro, scn
 
 
@@ -91,11 +96,13 @@ def compile_probe(suite: str, batch: int, chunk: int) -> dict:
     return {"compile_init_s": t1 - t0, "compile_s": t2 - t1}
 
 
-def measure(suite: str, batch: int, chunk: int, steps: int | None, reads_obs: bool = False) -> dict:
+def measure(suite: str, batch: int, chunk: int, steps: int | None, reads_obs: bool = False, config=None) -> dict:
+    """Throughput of ``_setup``'s rollout over ``steps`` (default the log length), timed after a
+    compiled warm-up chunk."""
     import jax
     import numpy as np
 
-    ro, scn = _setup(suite, batch, chunk, reads_obs)
+    ro, scn = _setup(suite, batch, chunk, reads_obs, config)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     carry = ro.init(scn, keys)
     carry, _ = ro.advance(scn, carry)  # warm-up: compile

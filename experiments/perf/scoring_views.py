@@ -29,54 +29,37 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # run.py beside this file
+
+import run as perf_run  # noqa: E402  (the state-only timing loop)
+
 CONFIGS = ("paper", "nuplan", "navsim", "idm")
 
 
 def measure(config: str, suite: str, batch: int, steps: int, chunk: int) -> dict:
-    """Time one configuration in this process (after a compile + warm-up chunk)."""
-    import jax
-    import jax.numpy as jnp
-
+    """Time one configuration in this process (``run.measure``: after a compile + warm-up chunk)."""
     from drivee2e_jax.metrics.driving_score import score_preset
-    from drivee2e_jax.policy import load_policy
-    from drivee2e_jax.rollout import Rollout
-    from drivee2e_jax.scenario import load_suite
-    from drivee2e_jax.sim import SimConfig, Simulator
+    from drivee2e_jax.sim import SimConfig
 
-    packed = load_suite(suite).pack(None)
-    n = len(packed.meta)
-    scn = jax.tree_util.tree_map(jnp.asarray, packed.select([i % n for i in range(batch)]).scenario)
     if config in ("before", "paper"):
         cfg = SimConfig()
     elif config == "idm":
         cfg = SimConfig(agents="idm")
     else:
         cfg = SimConfig(score=score_preset(config))
-    pol = load_policy(Path(os.environ.get("DRIVEE2E_SRC", ROOT)) / "drivee2e_jax" / "zoo" / "log_replay.py")
-    ro = Rollout(Simulator(cfg), pol, None, chunk=chunk)
-    keys = jax.random.split(jax.random.PRNGKey(0), batch)
-    carry, _ = ro.advance(scn, ro.init(scn, keys))  # compile + warm-up
-    jax.block_until_ready(carry)
-    carry = ro.init(scn, keys)
-    n_chunks = max(1, steps // chunk)
-    t0 = time.perf_counter()
-    for _ in range(n_chunks):
-        carry, _ = ro.advance(scn, carry)
-    jax.block_until_ready(carry)
-    wall = time.perf_counter() - t0
-    return {"config": config, "batch": batch, "steps": n_chunks * chunk, "wall_s": round(wall, 3),
-            "scenario_steps_per_s": round(batch * n_chunks * chunk / wall, 1), "load1": os.getloadavg()[0]}
+    m = perf_run.measure(suite, batch, chunk, steps, config=cfg)
+    return {"config": config, "batch": batch, "steps": m["steps"], "wall_s": round(m["wall_s"], 3),
+            "scenario_steps_per_s": round(m["scenario_steps_per_s"], 1), "load1": os.getloadavg()[0]}
 
 
 def run_one(config: str, args) -> dict:
     """``measure`` in a fresh subprocess (its own compile, nothing shared), from
     ``--baseline-src`` for ``before``."""
     src = args.baseline_src if config == "before" else ROOT
-    env = {**os.environ, "PYTHONPATH": str(src), "DRIVEE2E_SRC": str(src)}
+    env = {**os.environ, "PYTHONPATH": str(src)}
     cmd = [sys.executable, str(Path(__file__).resolve()), "--_one", config, "--suite", args.suite,
            "--batch", str(args.batch), "--steps", str(args.steps), "--chunk", str(args.chunk)]
     out = subprocess.run(cmd, env=env, cwd=src, capture_output=True, text=True, check=False)
