@@ -484,12 +484,13 @@ class Simulator:
             return facts
         wheelbase = getattr(self.config.dynamics, "wheelbase", nuplan.DEFAULT_WHEELBASE)
         lane_type = scenario.map.lane_type[jnp.maximum(state.ctx.lanes, 0)]
-        # Both need "in the junction": the ego centre on a connector lane.
-        on_lanes = navsim.tick(ego, lw, agents, tr.size, near, near_ok, lane_xy, lane_pv, lane_ok, lane_type, lane_w,
-                               multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase)
         if preset == "navsim":
-            return facts.replace(navsim=on_lanes)
-        wide = multi_lane | (excess > 0.0) | on_lanes.in_junction
+            return facts.replace(navsim=navsim.tick(
+                ego, lw, agents, tr.size, near, near_ok, lane_xy, lane_pv, lane_ok, lane_type, lane_w,
+                multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase))
+        # nuPlan looks sideways for TTC between lanes, off the drivable area and in the junction.
+        wide = (multi_lane | (excess > 0.0)
+                | navsim.in_junction(ego.xy, lane_xy, lane_pv, lane_ok, lane_type, lane_w))
         return facts.replace(nuplan=nuplan.tick(state.ego.xy, ego, lw, agents, tr.size, near, near_ok, lane_xy,
                                                 lane_pv, lane_ok, lane_w, wide_view=wide, wheelbase=wheelbase))
 

@@ -174,6 +174,14 @@ def _lane_membership(p, yaw, lane_xy, lane_pv, lane_ok, lane_width):
     return inside, aligned
 
 
+def in_junction(p, lane_xy, lane_pv, lane_ok, lane_type, lane_width):
+    """() bool: the point ``p (2,)`` lies on a CONNECTOR lane (within width/2
+    of its centre): "in the junction" for NAVSIM's DDC / LK and, in the
+    simulator, nuPlan's TTC view. Lanes as in ``tick``."""
+    inside, _ = _lane_membership(p, 0.0, lane_xy, lane_pv, lane_ok, lane_width)
+    return jnp.any(inside & (lane_type == LaneType.CONNECTOR))
+
+
 def ttc_violation(ego: EgoState, ego_lw, a_xy, a_yaw, a_vel, a_lw, a_ok, lax_zone, wheelbase: float):
     """() bool NAVSIM's time-to-collision failure at this tick.
 
@@ -249,7 +257,7 @@ def tick(
     connector = lane_type == LaneType.CONNECTOR
     inside, aligned = _lane_membership(ego.xy, ego.yaw, lane_xy, lane_pv, lane_ok, lane_width)
     rear_inside, _ = _lane_membership(rear, ego.yaw, lane_xy, lane_pv, lane_ok, lane_width)
-    in_junction = jnp.any(inside & connector)
+    junction = jnp.any(inside & connector)
     lax_zone = jnp.asarray(multi_lane) | jnp.asarray(off_drivable) | jnp.any(rear_inside & connector)
     ttc = ttc_violation(
         ego,
@@ -262,7 +270,7 @@ def tick(
         lax_zone,
         wheelbase,
     )
-    return NavsimTick(ttc_violation=ttc, in_junction=in_junction, oncoming=~jnp.any(inside & aligned))
+    return NavsimTick(ttc_violation=ttc, in_junction=junction, oncoming=~jnp.any(inside & aligned))
 
 
 # =============================================================================
