@@ -19,6 +19,10 @@ Configurations (``--configs``, default both):
   ``compile_s`` (ahead-of-time lower + compile of init and advance), the
   process ``cpu_s`` of the timed loop and the 1-minute load average before
   and after it (on a shared machine the wall varies by ~40 %).
+ ``--against-waymax ../wmx/venv/bin/python`` (the venv that
+  ``../shared/anchors/waymax/setup.sh`` makes) runs the state configurations
+  and Waymax's bare step side by side, ``--rounds`` times interleaved, each
+  in a fresh process, and prints the best-of ratios (the issue's report).
  For each it reports scenario-steps/s,
 agent-steps/s (valid replayed agents, the ego included, summed over the
 simulated steps), compile time cold and from JAX's persistent compilation
@@ -257,6 +261,59 @@ def _enable_persistent_cache():
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+WAYMAX_STEP = ROOT.parent / "shared" / "anchors" / "waymax" / "waymax_step.py"
+
+
+def _json_lines(cmd: list[str], env: dict | None = None) -> list[dict]:
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed (exit {proc.returncode}): {proc.stderr.strip()[-1500:]}")
+    return [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
+
+
+def against_waymax(args, batches: list[int]) -> int:
+    """The side-by-side ratio: for each B, ``--rounds`` interleaved rounds of
+    (this project's state-only configurations in a fresh process, Waymax's
+    bare ``env.step`` in a fresh process), the 1-minute load before each, and
+    the best of each side. Waymax runs ``WAYMAX_STEP`` (80 steps of 128
+    objects in one ``lax.scan``, median of 3) with PYTHONPATH = the ``stub``
+    folder next to the venv ``setup.sh`` made."""
+    py = Path(args.against_waymax)
+    if not py.is_file():
+        raise SystemExit(f"--against-waymax: {py} is not a file; expected the Python of the Waymax venv "
+                         "(bash ../shared/anchors/waymax/setup.sh <waymax git dir> ../wmx makes ../wmx/venv/bin/python)")
+    if not WAYMAX_STEP.is_file():
+        raise SystemExit(f"--against-waymax: {WAYMAX_STEP} is missing; expected ../shared/anchors/waymax beside the project")
+    stub = py.resolve().parents[2] / "stub"
+    wenv = dict(os.environ, PYTHONPATH=str(stub))
+    configs = [c for c in args.configs.split(",") if c in ("state_only", "state_obs")] or ["state_only"]
+    best: dict[tuple[str, int], float] = {}
+    for b in batches:
+        for r in range(args.rounds):
+            load = os.getloadavg()[0]
+            ours = _json_lines([sys.executable, __file__, "--configs", ",".join(configs), "--batches", str(b),
+                                "--no-compile", "--json", "--suite", args.suite, "--chunk", str(args.chunk)]
+                               + (["--steps", str(args.steps)] if args.steps else []))
+            wload = os.getloadavg()[0]
+            theirs = _json_lines([str(py), str(WAYMAX_STEP), str(b)], env=wenv)[-1]
+            rows = [{"round": r + 1, "side": o["config"], "batch": b, "scenario_steps_per_s": round(o["scenario_steps_per_s"]),
+                     "load_1min_before": round(load, 2)} for o in ours]
+            rows.append({"round": r + 1, "side": "waymax_bare_step", "batch": b,
+                         "scenario_steps_per_s": round(theirs["scenario_steps_per_s"]), "load_1min_before": round(wload, 2)})
+            for row in rows:
+                key = (row["side"], b)
+                best[key] = max(best.get(key, 0.0), row["scenario_steps_per_s"])
+                print(json.dumps(row) if args.json else
+                      f"round {row['round']}  B={b:<4} {row['side']:<17} {row['scenario_steps_per_s']:>8,} scenario-steps/s"
+                      f"  load {row['load_1min_before']}", flush=True)
+        w = best[("waymax_bare_step", b)]
+        for c in configs:
+            ratio = best[(c, b)] / w
+            print(json.dumps({"ratio": c, "batch": b, "best": best[(c, b)], "waymax_best": w, "ratio_vs_waymax": round(ratio, 3)})
+                  if args.json else f"B={b}: {c} best {best[(c, b)]:,.0f} / Waymax best {w:,.0f} = {ratio:.2f}x", flush=True)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--suite", default="twin15")
@@ -272,12 +329,19 @@ def main(argv=None) -> int:
     ap.add_argument("--host-devices", type=int, default=None,
                     help="sweep_bev_lidar: split the batch over N XLA CPU devices, one thread each "
                          "(XLA_FLAGS=--xla_force_host_platform_device_count=N; default: one device)")
+    ap.add_argument("--against-waymax", metavar="PY", default=None,
+                    help="also time Waymax's bare env.step with this Python (the venv made by "
+                         "../shared/anchors/waymax/setup.sh, e.g. ../wmx/venv/bin/python): both sides run --rounds "
+                         "times, interleaved, each in a fresh process, at the same B; prints best-of ratios")
+    ap.add_argument("--rounds", type=int, default=2, help="--against-waymax: interleaved rounds (default 2)")
     ap.add_argument("--_probe", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.host_devices:
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "")
                                    + f" --xla_force_host_platform_device_count={args.host_devices}").strip()
     batches = [int(b) for b in args.batches.split(",")]
+    if args.against_waymax:
+        return against_waymax(args, batches)
 
     if args._probe:
         _enable_persistent_cache()
