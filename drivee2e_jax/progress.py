@@ -28,11 +28,11 @@ class StepBar:
     """A tqdm bar over simulated steps, fed by ``update(done, total)`` callbacks
     (``evaluate(progress=bar.update)``); a no-op when disabled."""
 
-    def __init__(self, name: str, enabled: bool):
+    def __init__(self, name: str, enabled: bool, unit: str = "step"):
         self.bar = None
         self.last = 0
         if enabled:
-            self.bar = tqdm(total=None, desc=f"{name:>12}", unit="step", leave=True, dynamic_ncols=True)
+            self.bar = tqdm(total=None, desc=f"{name:>12}", unit=unit, leave=True, dynamic_ncols=True)
 
     def update(self, done: int, total: int) -> None:
         if self.bar is None:

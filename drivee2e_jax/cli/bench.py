@@ -16,6 +16,7 @@ examples:
   drivee2e bench --policy ad_mlp:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3 --policy stop
   drivee2e bench --policy expert --preset nuplan --agents idm --collisions at_fault --out results/nuplan-idm
   drivee2e bench --coordinator 10.0.0.1:4000 --num-processes 2 --process-id 0   # and --process-id 1 elsewhere
+  drivee2e bench --suite suites/twin15_8k --split val --shard-size 800 --policy log_replay   # a suite larger than memory
 
 Reference policies can be named without a path: log_replay, expert, stop,
 constant_velocity. --open-loop adds L2 at 1/2/3 s (ST-P3 and UniAD
@@ -115,6 +116,10 @@ def add_parser(subparsers) -> None:
                    help="processes in the run (default: $DRIVEE2E_NUM_PROCESSES)")
     p.add_argument("--process-id", type=int, default=None, metavar="I",
                    help="this process, 0..N-1; process 0 writes the results (default: $DRIVEE2E_PROCESS_ID)")
+    p.add_argument("--shard-size", type=int, default=None, metavar="N",
+                   help="stream the split through the compiled rollout N scenarios at a time; a suite folder is "
+                        "then read shard by shard, never whole (suites larger than memory); same results as "
+                        "without (default: the whole split in one batch); docs/scaling.md")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -148,6 +153,7 @@ def run(args) -> int:
         coordinator=args.coordinator,
         num_processes=args.num_processes,
         process_id=args.process_id,
+        shard_size=args.shard_size,
     )
     run_bench(cfg, print_fn=print)
     return 0

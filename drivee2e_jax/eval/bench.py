@@ -9,6 +9,7 @@ match (the results folder's rules: ``eval.results``).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import importlib.metadata
 import time
 from collections.abc import Callable
@@ -16,6 +17,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import jax
+import numpy as np
 
 from drivee2e_jax import hostbridge
 from drivee2e_jax.errors import DriveE2EError
@@ -33,6 +35,7 @@ from drivee2e_jax.eval.results import (
     run_provenance,
 )
 from drivee2e_jax.eval.runspec import RunSpec, batch_sha256, check_dt_against_logs, pick_split
+from drivee2e_jax.eval.stream import evaluate_stream, shards_of
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, finite, format_tables, summarize
 from drivee2e_jax.eval.tasks import add_task_success
 from drivee2e_jax.metrics import episode as ep
@@ -40,6 +43,8 @@ from drivee2e_jax.policy import load_policy
 from drivee2e_jax.progress import StepBar
 from drivee2e_jax.remote import is_remote_spec
 from drivee2e_jax.scenario import load_suite
+from drivee2e_jax.scenario.stream import SuiteIndex
+from drivee2e_jax.scenario.stream import shards as stream_shards
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +84,11 @@ class BenchConfig:
       coordinator / num_processes / process_id: several processes
         (``distributed.initialize``; None = env or one process): each rolls
         out its part of the scenarios, process 0 gathers and writes.
+      shard_size: stream the split through the compiled rollout in shards of
+        this many scenarios (``eval.stream``): a suite folder is then read
+        shard by shard (``scenario.stream``), never whole, so memory does
+        not grow with the suite; results equal the in-memory run's. None =
+        one batch of the whole split.
     """
 
     suite: str = "twin15"
@@ -106,6 +116,7 @@ class BenchConfig:
     coordinator: str | None = None
     num_processes: int | None = None
     process_id: int | None = None
+    shard_size: int | None = None
 
     def run_spec(self) -> RunSpec:
         """The requested ``RunSpec`` of this run (``run.json`` once resolved;
@@ -134,6 +145,10 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
         print_fn = _silent
 
     cfg.run_spec()  # checks dt, timing, seed, limit, repetitions, task, variant before the suite loads
+    if cfg.shard_size is not None:
+        check_streamable(cfg, multi)
+        if _streams_folder(cfg):  # read shard by shard, never whole
+            return _run_bench_folder_stream(cfg, print_fn)
     suite = load_suite(cfg.suite)
     if cfg.split is None:
         split, note = pick_split(suite.splits, f"suite {suite.name}")
@@ -146,6 +161,120 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     check_dt_against_logs(spec.dt, evaluated.meta)
     if run_batch.variant is not None:
         print_fn(run_batch.variant.summary())
+    policies, fingerprints, policy_kwargs, names = _load_policies(cfg)
+    spec.sim_config(), spec.timing()  # their errors too, before anything is written
+
+    out = Path(cfg.out or spec.default_out())
+    spec = spec.resolve(suite, run_batch)
+    run_info = {**spec.to_json(),  # run.json: the spec + what resuming must also match
+                "fingerprint": {"suite_sha256": batch_sha256(evaluated),
+                                "drivee2e_version": package_version()}}
+    source = None if cfg.shard_size is None else _InMemoryShards(evaluated, cfg.shard_size, suite)
+    return _open_and_run(cfg, spec, run_info, out, suite.name, suite.version, run_batch, task, policies,
+                         fingerprints, policy_kwargs, names, multi, print_fn, source, lambda: suite.maps)
+
+
+def _streams_folder(cfg: BenchConfig) -> bool:
+    """Whether a ``--shard-size`` run reads its suite folder shard by shard
+    (a built-in suite is generated and packed in memory, then cut in shards)."""
+    return Path(cfg.suite).is_dir()
+
+
+def check_streamable(cfg: BenchConfig, multi: bool) -> None:
+    """One-line DriveE2EError for ``--shard-size`` with what it does not support."""
+    if cfg.shard_size < 1:
+        raise DriveE2EError(f"--shard-size must be >= 1, got {cfg.shard_size}")
+    flags = {"--open-loop": cfg.open_loop, f"--repetitions {cfg.repetitions}": cfg.repetitions != 1,
+             f"--variant {cfg.variant}": cfg.variant != "complete", "several processes": multi}
+    bad = [f for f, on in flags.items() if on]
+    if bad:
+        raise DriveE2EError(f"--shard-size streams one rollout over the split in shards and does not combine with "
+                            f"{bad[0]}; drop --shard-size (in-memory run) or {bad[0]}")
+
+
+class _InMemoryShards:
+    """The shards of an in-memory run (a built-in suite): its evaluated batch cut in ``size`` rows."""
+
+    def __init__(self, packed, size: int, suite):
+        self.packed, self.size, self.suite = packed, size, suite
+
+    def shards(self):
+        return shards_of(self.packed, self.size)
+
+    def maps(self) -> dict:
+        return self.suite.maps
+
+
+class _FolderShards:
+    """The shards of a suite folder read shard by shard (``scenario.stream``):
+    the split's first ``n`` rows (``--limit``), each shard checked against ``dt``."""
+
+    def __init__(self, index, split: str, n: int, size: int, dt: float):
+        self.index, self.split, self.n, self.size, self.dt = index, split, n, size, dt
+
+    def shards(self):
+        seen = 0
+        for rows, packed in stream_shards(self.index, self.split, self.size):
+            if seen >= self.n:
+                return
+            if seen + len(rows) > self.n:  # --limit ends inside this shard
+                keep = np.arange(self.n - seen)
+                rows, packed = rows[keep], packed.select(keep)
+            check_dt_against_logs(self.dt, packed.meta)
+            seen += len(rows)
+            yield rows, packed
+
+    def maps(self) -> dict:
+        return self.index.maps
+
+
+def folder_fingerprint(index, split: str, n: int) -> str:
+    """Hex sha256 of a streamed folder run's inputs without reading every
+    scenario: suite.json and the map files by content, the split's first
+    ``n`` scenario files by name, size and modification time (hashing the
+    content of a suite larger than memory would read it twice)."""
+    h = hashlib.sha256()
+    folder = Path(index.folder)
+    for rel in ["suite.json", *sorted(f"maps/{p.name}" for p in (folder / "maps").glob("*.json"))]:
+        data = (folder / rel).read_bytes()
+        h.update(f"{rel}:{len(data)}\n".encode())
+        h.update(data)
+    for row in index.rows(split)[:n]:
+        rel = f"scenarios/{index.ids[row]}.json"
+        st = (folder / rel).stat()
+        h.update(f"{rel}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
+def _run_bench_folder_stream(cfg: BenchConfig, print_fn) -> dict:
+    """``run_bench`` for ``--shard-size`` on a suite folder: the folder is never
+    read whole (``scenario.stream``); the task filter is not available here."""
+    index = SuiteIndex.open(cfg.suite)
+    if cfg.task != "route_navigation":
+        raise DriveE2EError(f"--task {cfg.task} filters the whole split in memory; it does not combine with "
+                            "--shard-size on a suite folder")
+    if cfg.split is None:
+        split, note = pick_split(index.split_counts(), f"suite {index.name}")
+        print_fn(note)
+        cfg = dataclasses.replace(cfg, split=split)
+    spec = cfg.run_spec()
+    task = spec.task_spec()
+    total = len(index.rows(spec.split))
+    n = min(total, spec.limit or total)
+    policies, fingerprints, policy_kwargs, names = _load_policies(cfg)
+    spec.sim_config(), spec.timing()
+    out = Path(cfg.out or spec.default_out())
+    spec = dataclasses.replace(spec, suite_version=index.version, num_scenarios=n, variant_removed=None)
+    run_info = {**spec.to_json(),
+                "fingerprint": {"suite_files_sha256": folder_fingerprint(index, spec.split, n),
+                                "drivee2e_version": package_version()}}
+    source = _FolderShards(index, spec.split, n, cfg.shard_size, spec.dt)
+    return _open_and_run(cfg, spec, run_info, out, index.name, index.version, None, task, policies,
+                         fingerprints, policy_kwargs, names, False, print_fn, source, lambda: index.maps)
+
+
+def _load_policies(cfg: BenchConfig):
+    """(policies under their result names, their fingerprints, kwargs, names); unique names."""
     policy_kwargs = cfg.policy_kwargs or tuple({} for _ in cfg.policies)
     policy_names = cfg.policy_names or tuple("" for _ in cfg.policies)
     if not len(policy_kwargs) == len(policy_names) == len(cfg.policies):
@@ -159,21 +288,20 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise DriveE2EError(f"two policies are named {sorted(dup)[0]!r}; policy names must be unique in a run")
-    spec.sim_config(), spec.timing()  # their errors too, before anything is written
+    return policies, fingerprints, policy_kwargs, names
 
-    out = Path(cfg.out or spec.default_out())
-    spec = spec.resolve(suite, run_batch)
-    run_info = {**spec.to_json(),  # run.json: the spec + what resuming must also match
-                "fingerprint": {"suite_sha256": batch_sha256(evaluated),
-                                "drivee2e_version": package_version()}}
+
+def _open_and_run(cfg, spec, run_info, out, suite_name, suite_version, run_batch, task, policies, fingerprints,
+                  policy_kwargs, names, multi, print_fn, source, maps_fn) -> dict:
+    """Open the results folder, run every policy not done there, write the outputs."""
     resumable = {n: None if is_remote_spec(p) else fp for n, p, fp in zip(names, cfg.policies, fingerprints)}
     run, done = distributed.on_root(
         lambda: RunDir(out, run_info, force=cfg.force, policies=resumable,
                        provenance=run_provenance(out, cfg.suite, _jax_provenance())),
         lambda r: [n for n in names if r.done(n)])
     try:
-        _run_policies(cfg, spec, run, done, out, suite, run_batch, task, policies, fingerprints, policy_kwargs,
-                      multi, print_fn)
+        _run_policies(cfg, spec, run, done, out, suite_name, suite_version, run_batch, task, policies, fingerprints,
+                      policy_kwargs, multi, print_fn, source, maps_fn)
         return {} if run is None else _write_outputs(run, policies, out, print_fn)  # process 0 writes
     finally:
         for pol in policies:  # host policies: release what they hold (a remote policy's connection)
@@ -183,18 +311,21 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
             run.close()
 
 
-def _run_policies(cfg, spec, run, done, out, suite, run_batch, task, policies, fingerprints, policy_kwargs, multi,
-                  print_fn) -> None:
+def _run_policies(cfg, spec, run, done, out, suite_name, suite_version, run_batch, task, policies, fingerprints,
+                  policy_kwargs, multi, print_fn, source, maps_fn) -> None:
     """``run_bench`` once the folder is open: roll out every policy not
-    ``done`` and save each (``run`` is None on processes other than 0)."""
-    packed = run_batch.packed
+    ``done`` and save each (``run`` is None on processes other than 0).
+    ``source``: the shards of a streamed run (None: ``run_batch`` in memory);
+    ``maps_fn()``: the suite's maps (read only for a BEV policy)."""
+    packed = None if run_batch is None else run_batch.packed
     sim_cfg, timing = spec.sim_config(), spec.timing()
     num = spec.num_scenarios
     shard = distributed.process_shard(num) if multi else None
     if multi and num < distributed.process_count():
         raise DriveE2EError(f"{num} scenarios for {distributed.process_count()} processes: "
                             "use at most one process per scenario")
-    print_fn(f"suite {suite.name} v{suite.version}, split {spec.split}: {num} scenarios -> {out}")
+    streamed = "" if source is None else f" in shards of {cfg.shard_size}"
+    print_fn(f"suite {suite_name} v{suite_version}, split {spec.split}: {num} scenarios{streamed} -> {out}")
 
     for pol, path, kwargs, fp in zip(policies, cfg.policies, policy_kwargs, fingerprints):
         if pol.name in done:
@@ -206,16 +337,21 @@ def _run_policies(cfg, spec, run, done, out, suite, run_batch, task, policies, f
         # All repetitions in one rollout (the batch tiled, keys as separate seeds would give).
         seeds = spec.repetition_seeds()
         label = pol.name if seeds is None else f"{pol.name} x{cfg.repetitions} reps"
-        bar = StepBar(label, cfg.progress and run is not None)
-        res = evaluate(
-            pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed, seeds=seeds, limit=cfg.limit,
-            progress=bar.update, maps=suite.maps if "bev" in getattr(pol, "required_sensors", ()) else None,
-            shard=shard,
-        )
+        needs_maps = "bev" in getattr(pol, "required_sensors", ())
+        if source is not None:
+            bar = StepBar(label, cfg.progress and run is not None, unit="scenario")
+            res = evaluate_stream(pol, source.shards(), num, config=sim_cfg, timing=timing, seed=cfg.seed,
+                                  progress=bar.update, maps=maps_fn() if needs_maps else None)
+        else:
+            bar = StepBar(label, cfg.progress and run is not None)
+            res = evaluate(
+                pol, packed, None, config=sim_cfg, timing=timing, seed=cfg.seed, seeds=seeds, limit=cfg.limit,
+                progress=bar.update, maps=maps_fn() if needs_maps else None, shard=shard,
+            )
         bar.close()
         res = distributed.gather_result(res)  # every process's rows (no-op in one process)
         if cfg.open_loop and run is not None:
-            _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn, suite)
+            _add_open_loop(pol, packed, res.rows, sim_cfg, cfg, print_fn, maps_fn)
         add_task_success(task, res.rows)
         events = {event_key(r): res.events[event_key(r)] for r in res.rows}
         timing_info = {"compile_s": res.compile_s, "wall_s": res.wall_s, "steps": res.steps}
@@ -284,7 +420,7 @@ def _named(pol, name: str):
     return pol
 
 
-def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, print_fn, suite) -> None:
+def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, print_fn, maps_fn) -> None:
     """Add the open-loop columns to ``rows`` (null for a controls policy)."""
 
     if pol.action_type != "waypoints":
@@ -294,7 +430,7 @@ def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, pri
         return
 
     t0 = time.perf_counter()
-    maps = suite.maps if "bev" in getattr(pol, "required_sensors", ()) else None
+    maps = maps_fn() if "bev" in getattr(pol, "required_sensors", ()) else None
     ol = evaluate_openloop(pol, packed, config=sim_cfg, seed=cfg.seed, limit=cfg.limit, maps=maps)
     for r in rows:
         got = ol[r["scenario_id"]]
