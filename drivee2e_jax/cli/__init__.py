@@ -61,6 +61,25 @@ def _unavailable(subparsers, mod: str, exc: BaseException) -> None:
     p.set_defaults(func=fail)
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: looks the version up only when asked (``importlib.metadata``
+    costs ~30 ms, which every other command would pay for nothing)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="show program's version number and exit"):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            text = version("drivee2e-jax")
+        except PackageNotFoundError:  # a checkout on sys.path, not installed as a distribution
+            from drivee2e_jax import __version__ as text
+        print(f"{parser.prog} {text}")  # on stdout, as argparse's own version action
+        parser.exit()
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The full parser, or one with only the ``only`` subcommand module."""
     parser = argparse.ArgumentParser(
@@ -68,12 +87,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors (allowed anywhere)")
-    try:
-        from importlib.metadata import version
-
-        parser.add_argument("--version", action="version", version=f"%(prog)s {version('drivee2e-jax')}")
-    except Exception:  # noqa: BLE001 - not installed as a distribution
-        pass
+    parser.add_argument("--version", action=_VersionAction)
     subparsers = parser.add_subparsers(dest="command", metavar="<command>", required=True)
     for mod in SUBCOMMANDS if only is None else (only,):
         try:

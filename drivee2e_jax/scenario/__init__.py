@@ -16,7 +16,7 @@ import importlib
 # and the CLI's parsers do not pay for JAX: name -> module of this package.
 # (``pack`` is the submodule; its function is ``scenario.pack.pack``.)
 _LAZY = {
-    "PackedBatch": "batch", "SuiteMeta": "batch",
+    "PackedBatch": "batch", "SuiteMeta": "meta",
     "pack_buckets": "pack", "unpack": "pack",
     "Problem": "problems",
     "read_suite": "schema", "validate_suite": "schema", "write_suite": "schema",

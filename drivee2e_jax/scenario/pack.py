@@ -60,15 +60,12 @@ from drivee2e_jax.records import (
     TrackRecord,
 )
 from drivee2e_jax.scenario.batch import META_STR, PackedBatch, SuiteMeta, bucket
+from drivee2e_jax.scenario.cache import PACK_FORMAT  # its home (no JAX): the cache key needs it
 from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
 from drivee2e_jax.scenario.routes import densify_route, junction_area, route_commands
 from drivee2e_jax.scenario.sizes import PackSizes, alloc_leaves, map_of, record_needs
 
 __all__ = ["PACK_FORMAT", "pack", "unpack", "pack_buckets", "track_order"]
-
-#: Version of the packed-array semantics; bump it when they change so that
-#: on-disk packed caches are rebuilt.
-PACK_FORMAT = 2  # 2: obstacle footprints have their own vertex count
 
 # On-disk names -> enum values (by name, so a reordering of either side is caught).
 _CATEGORY = {n: int(types.Category[n.upper()]) for n in CATEGORIES}

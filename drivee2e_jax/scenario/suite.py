@@ -6,12 +6,19 @@ packed once (``scenario.pack``) and kept in a **packed cache** under
 ``$DRIVEE2E_CACHE`` (default ``~/.cache/drivee2e``; ``DRIVEE2E_CACHE=off``
 disables it): ``suites/<name>-<source>-<key>.npz`` (np.savez, uncompressed,
 one array per ``sizes.LEAVES`` name) plus a ``.json`` sidecar with the meta
-table and category counts. The key hashes the suite name, the generator
-``VERSION`` (built-in) or the files' paths/sizes/mtimes (folder), the schema
-version and the pack format, so any change rebuilds. Both files are written
-atomically. The npz is read back memory-mapped (no copy; a 0.5 GB suite loads
-in ~0.3 s) with every member checked against its zip CRC; a cache that fails
-any check (size, CRC, dtype, shape, meta) is rebuilt, never trusted.
+table and category counts (``scenario.cache``). The key hashes the suite
+name, the generator ``VERSION`` (built-in) or the files' paths/sizes/mtimes
+(folder), the schema version and the pack format, so any change rebuilds.
+Both files are written atomically. The npz is read back memory-mapped (no
+copy; a 0.5 GB suite loads in ~0.3 s) with every member checked against its
+zip CRC; a cache that fails any check (size, CRC, dtype, shape, meta) is
+rebuilt, never trusted.
+
+This module imports no JAX: ``name``, ``version``, ``ready``, ``meta``,
+``splits`` and ``info()`` of a suite whose cache is warm come from the
+sidecar (a built-in generator's ``VERSION`` is read from its source), and
+``scenario.suite_arrays`` (packing, the batch; JAX) is loaded only when a
+batch is needed or the cache is cold.
 
 Splits are rows of the cached full-suite batch: ``suite.pack("val")`` never
 regenerates or re-reads records, and every split shares the suite's padded
@@ -21,48 +28,32 @@ asked for.
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import importlib
-import io
+import importlib.util
 import json
-import logging
-import mmap
 import os
-import re
-import struct
-import zipfile
-import zlib
+import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.files import atomic_write, cache_dir
-from drivee2e_jax.records import (
-    BEHAVIORS,
-    CATEGORIES,
-    SCHEMA_VERSION,
-    SPLITS,
-    TIMES_OF_DAY,
-    WEATHERS,
-    SuiteRecord,
-)
+from drivee2e_jax.records import BEHAVIORS, SPLITS, TIMES_OF_DAY, WEATHERS, SuiteRecord
 from drivee2e_jax.scenario import schema
-from drivee2e_jax.scenario.batch import PackedBatch, SuiteMeta, bucket, resize
-from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
-from drivee2e_jax.scenario.pack import PACK_FORMAT, pack
+from drivee2e_jax.scenario.cache import CACHE_FORMAT as CACHE_FORMAT  # re-exported: it was defined here
+from drivee2e_jax.scenario.cache import Sidecar, cache_key, cache_paths, read_sidecar
+from drivee2e_jax.scenario.meta import SuiteMeta
 from drivee2e_jax.scenario.problems import Problem, problems_error
-from drivee2e_jax.scenario.sizes import LEAVES, PackSizes
 from drivee2e_jax.scenario.validate import validate_records
 
+if TYPE_CHECKING:
+    from drivee2e_jax.scenario.batch import PackedBatch
+    from drivee2e_jax.scenario.sizes import PackSizes
+
 __all__ = ["Suite", "load_suite", "generate_suite", "BUILTIN_SUITES"]
-
-log = logging.getLogger("drivee2e.cache")
-
-#: Layout version of the cache files (bump to orphan old caches).
-CACHE_FORMAT = 1
 
 #: Built-in suites: name -> (generator module, seed). The module exposes
 #: ``generate(seed=...) -> SuiteRecord`` and ``VERSION``.
@@ -106,6 +97,10 @@ class _Builtin:
 
     @property
     def version(self) -> str:
+        if self._module is None and self.module_name not in sys.modules:
+            declared = _declared_version(self.module_name)
+            if declared is not None:
+                return declared
         return str(self.module().VERSION)
 
     def key_parts(self) -> dict:
@@ -124,6 +119,34 @@ class _Builtin:
                                     f"record: {problems_error(problems)}")
             _GENERATED[memo] = rec
         return _GENERATED[memo]
+
+
+def _declared_version(module_name: str) -> str | None:
+    """``VERSION`` as the generator module's source assigns it, read without
+    importing the module; None unless it is one top-level ``VERSION = <str or
+    int literal>`` that nothing else in the file rebinds (then the caller
+    imports the module). The cache key needs only this, and importing twin15
+    runs its whole generator's imports, JAX included (~0.9 s)."""
+    try:
+        spec = importlib.util.find_spec(module_name)
+        origin = Path(spec.origin) if spec is not None and spec.origin else None
+        if origin is None or origin.suffix != ".py":
+            return None
+        tree = ast.parse(origin.read_bytes(), filename=str(origin))
+    except (ImportError, ValueError, OSError, SyntaxError):
+        return None
+    binds = [n for n in ast.walk(tree)
+             if (isinstance(n, ast.Name) and n.id == "VERSION" and not isinstance(n.ctx, ast.Load))
+             or (isinstance(n, ast.alias) and (n.asname or n.name) in ("VERSION", "*"))
+             or (isinstance(n, (ast.Global, ast.Nonlocal)) and "VERSION" in n.names)]
+    top = [n for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign)) and n.value is not None
+           and any(isinstance(t, ast.Name) and t.id == "VERSION" for t in (n.targets if isinstance(n, ast.Assign) else [n.target]))]
+    if len(binds) != 1 or len(top) != 1:
+        return None
+    value = top[0].value
+    if not isinstance(value, ast.Constant) or type(value.value) not in (str, int):
+        return None
+    return str(value.value)
 
 
 class _Folder:
@@ -184,121 +207,28 @@ def generate_suite(name: str = "twin15", seed: int | None = None) -> SuiteRecord
 # --------------------------------------------------------------------------
 
 
-def _cache_paths(source, key: str) -> tuple[Path, Path] | None:
-    root = cache_dir()
-    if root is None or not hasattr(source, "key_parts"):
-        return None
-    safe = re.sub(r"[^A-Za-z0-9_.-]", "_", source.name)[:40]
-    stem = root / "suites" / f"{safe}-{source.source_id()}-{key[:16]}"
-    return stem.with_suffix(".npz"), stem.with_suffix(".json")
+def _arrays():
+    """``scenario.suite_arrays``, the JAX half (packing, the npz <-> PackedBatch)."""
+    from drivee2e_jax.scenario import suite_arrays  # noqa: PLC0415 - it imports JAX (~1 s): only when a batch is needed, so that info / meta / splits from the sidecar stay JAX-free
+
+    return suite_arrays
 
 
 class _Packed:
     """The full suite: meta + category counts (sidecar) and the batch (npz, lazy)."""
 
-    def __init__(self, meta: SuiteMeta, categories: dict[str, int], batch=None, npz: Path | None = None,
-                 npz_bytes: int = 0):
-        self.meta, self.categories, self._batch = meta, categories, batch
-        self.npz, self.npz_bytes = npz, npz_bytes
+    def __init__(self, meta: SuiteMeta, categories: dict[str, int], batch: PackedBatch | None = None,
+                 sidecar: Sidecar | None = None):
+        self.meta, self.categories, self._batch, self.sidecar = meta, categories, batch, sidecar
+
+    @classmethod
+    def of(cls, sidecar: Sidecar | None) -> _Packed | None:
+        return None if sidecar is None else cls(sidecar.meta, sidecar.categories, sidecar=sidecar)
 
     def batch(self) -> PackedBatch | None:
-        if self._batch is None:
-            self._batch = _load_npz(self.npz, self.npz_bytes, self.meta)
+        if self._batch is None and self.sidecar is not None:
+            self._batch = _arrays().load_batch(self.sidecar)
         return self._batch
-
-
-def _load_sidecar(npz: Path, side: Path, key: str) -> _Packed | None:
-    try:
-        head = json.loads(side.read_text(encoding="utf-8"))
-        if head.get("format") != CACHE_FORMAT or head.get("key") != key:
-            return None
-        meta = SuiteMeta.from_json(head["meta"])
-        categories = {str(k): int(v) for k, v in head["categories"].items()}
-        if not npz.is_file() or npz.stat().st_size != int(head["npz_bytes"]):
-            raise ValueError(f"{npz.name} is missing or has the wrong size")
-        return _Packed(meta, categories, npz=npz, npz_bytes=int(head["npz_bytes"]))
-    except FileNotFoundError:
-        return None
-    except Exception as e:  # noqa: BLE001 - any defect means "rebuild"
-        log.warning("drivee2e: packed cache %s is unusable (%s: %s); rebuilding", side, type(e).__name__, e)
-        return None
-
-
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
-    """The members of an uncompressed ``.npz`` as read-only arrays over one
-    memory map (no copy: a split only touches its own rows). Each member is
-    checked against the CRC the zip directory holds; any defect raises."""
-    with open(path, "rb") as fh:
-        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    view = memoryview(mm)
-    out = {}
-    with zipfile.ZipFile(path) as zf:
-        for info in zf.infolist():
-            if info.compress_type != zipfile.ZIP_STORED or not info.filename.endswith(".npy"):
-                raise ValueError(f"member {info.filename} is not a stored .npy")
-            h = info.header_offset
-            if bytes(view[h : h + 4]) != b"PK\x03\x04":
-                raise ValueError(f"member {info.filename}: bad local header")
-            n_name, n_extra = struct.unpack("<HH", view[h + 26 : h + 30])
-            start = h + 30 + n_name + n_extra
-            end = start + info.file_size
-            if end > len(mm) or zlib.crc32(view[start:end]) != info.CRC:
-                raise ValueError(f"member {info.filename}: CRC mismatch")
-            fp = io.BytesIO(view[start : min(end, start + 65536)])
-            version = np.lib.format.read_magic(fp)
-            readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
-            if version not in readers:
-                raise ValueError(f"member {info.filename}: npy format {version} is not supported")
-            shape, fortran, dtype = readers[version](fp)
-            if dtype.hasobject:
-                raise ValueError(f"member {info.filename}: object arrays are not allowed")
-            out[info.filename[:-4]] = np.ndarray(shape, dtype, buffer=mm, offset=start + fp.tell(),
-                                                 order="F" if fortran else "C")
-    return out
-
-
-def _load_npz(npz: Path, npz_bytes: int, meta: SuiteMeta) -> PackedBatch | None:
-    try:
-        if npz.stat().st_size != npz_bytes:
-            raise ValueError("size changed since the sidecar was written")
-        flat = _read_npz(npz)
-        for k, (axes, dtype, _) in LEAVES.items():
-            a = flat[k]
-            if a.dtype != np.dtype(dtype) or a.ndim != 1 + len(axes) or a.shape[0] != len(meta):
-                raise ValueError(f"{k}: dtype {a.dtype} shape {a.shape} does not match the pack format")
-        scenario = unflatten_scenario(flat).validate()
-        if meta.stop_line_group.shape[1] != scenario.map.stop_lines.shape[1]:
-            raise ValueError("meta.stop_line_group does not match the stop lines")
-        return PackedBatch(scenario, meta)
-    except Exception as e:  # noqa: BLE001 - any defect means "rebuild"
-        log.warning("drivee2e: packed cache %s is unusable (%s: %s); rebuilding", npz, type(e).__name__, e)
-        return None
-
-
-def _save(paths: tuple[Path, Path], key: str, name: str, batch: PackedBatch,
-          categories: dict[str, int]) -> None:
-    npz, side = paths
-    try:
-        npz.parent.mkdir(parents=True, exist_ok=True)
-        flat = {k: np.asarray(v) for k, v in flatten_scenario(batch.scenario).items()}
-        atomic_write(npz, lambda fh: np.savez(fh, **flat), binary=True)
-        head = {"format": CACHE_FORMAT, "key": key, "suite": name, "schema_version": SCHEMA_VERSION,
-                "pack_format": PACK_FORMAT, "npz_bytes": npz.stat().st_size,
-                "sizes": batch.sizes.as_dict(), "categories": categories, "meta": batch.meta.to_json()}
-        atomic_write(side, lambda fh: fh.write(json.dumps(head, separators=(",", ":")).encode()), binary=True)
-        prefix = npz.stem.rsplit("-", 1)[0]
-        for old in npz.parent.glob(f"{prefix}-*"):
-            if old.stem != npz.stem and old.suffix in (".npz", ".json"):
-                old.unlink(missing_ok=True)
-    except OSError as e:
-        log.warning("drivee2e: could not write the packed cache %s (%s); continuing without it", npz, e)
-
-
-def _category_counts(batch: PackedBatch) -> dict[str, int]:
-    tr = batch.scenario.tracks
-    cats = np.asarray(tr.category)[np.asarray(tr.valid).any(axis=-1)]
-    counts = np.bincount(cats, minlength=len(CATEGORIES))
-    return {c: int(counts[int(types.Category[c.upper()])]) for c in CATEGORIES}
 
 
 # --------------------------------------------------------------------------
@@ -362,10 +292,8 @@ class Suite:
     def _cache_target(self) -> tuple[tuple[Path, Path] | None, str | None]:
         if not self._use_cache or not hasattr(self._source, "key_parts"):
             return None, None
-        parts = {"cache": CACHE_FORMAT, "pack": PACK_FORMAT, "schema": SCHEMA_VERSION,
-                 "name": self.name, **self._source.key_parts()}
-        key = hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()
-        return _cache_paths(self._source, key), key
+        key = cache_key(self._source.key_parts(), self.name)
+        return cache_paths(self._source.name, self._source.source_id(), key), key
 
     @property
     def ready(self) -> bool:
@@ -375,24 +303,21 @@ class Suite:
         if self._packed is None:
             paths, key = self._cache_target()
             if paths is not None:
-                self._packed = _load_sidecar(*paths, key)
+                self._packed = _Packed.of(read_sidecar(*paths, key))
         return self._packed is not None
 
     def _full(self) -> _Packed:
         if self._packed is None:
             paths, key = self._cache_target()
-            packed = _load_sidecar(*paths, key) if paths is not None else None
+            packed = _Packed.of(read_sidecar(*paths, key)) if paths is not None else None
             self._packed = packed or self._build(paths, key)
         return self._packed
 
     def _build(self, paths, key) -> _Packed:
-        rec = self.records
-        batch = pack(rec.scenarios, rec.maps)
-        for leaf in flatten_scenario(batch.scenario).values():
-            leaf.flags.writeable = False  # as when it comes memory-mapped from the cache
-        categories = _category_counts(batch)
+        arrays = _arrays()
+        batch, categories = arrays.build(self.records)
         if paths is not None:
-            _save(paths, key, self.name, batch, categories)
+            arrays.save_batch(paths, key, self.name, batch, categories)
         return _Packed(batch.meta, categories, batch)
 
     def _batch(self) -> PackedBatch:
@@ -442,11 +367,11 @@ class Suite:
         batch = self._batch()
         if split is not None:
             batch = batch.select(rows)
-        return batch if sizes is None else resize(batch, sizes)
+        return batch if sizes is None else _arrays().resize(batch, sizes)
 
     def pack_buckets(self, split: str | None = None, num_buckets: int = 4) -> list[PackedBatch]:
         """``split`` as a few batches grouped by (agents, steps), each fitted."""
-        return bucket(self.pack(split), num_buckets)
+        return _arrays().bucket(self.pack(split), num_buckets)
 
     def info(self) -> dict[str, Any]:
         """Counts for people and tools (``drivee2e suite info --json``)."""

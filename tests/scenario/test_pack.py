@@ -193,7 +193,9 @@ def test_densify_keeps_last_point_and_drops_repeats():
 def test_densify_property(points):
     w = np.array(points, dtype=float)
     xy, arc = densify_route(w)
-    np.testing.assert_allclose(xy[0], w[0], atol=1e-8)
+    # the first point, unless the whole polyline is shorter than the 1e-6 m a last piece is merged under
+    # (Hypothesis found [(0, 0), (0, 6e-8)]: one point, the exact end)
+    np.testing.assert_allclose(xy[0], w[0], atol=1e-6)
     np.testing.assert_allclose(xy[-1], w[-1])
     gaps = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     assert (gaps <= 1.0 + 1e-9).all()
