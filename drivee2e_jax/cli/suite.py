@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import sys
 import time
@@ -40,12 +41,22 @@ pip install 'drivee2e-jax[import]'. Check the result with
 """
 
 GENERATE_EPILOG = """\
-example:
+examples:
   drivee2e suite generate --out suites/twin15      # --name twin15 --seed 0: the defaults
+  drivee2e suite generate --scenarios 8000 --out suites/twin15x10
 
 The folder holds suite.json, maps/<map_id>.json and scenarios/<id>.json; the
-same name and seed always give the same bytes. An existing non-empty folder is
-refused unless --force (which only ever replaces a suite folder).
+same name, seed and --scenarios always give the same bytes. An existing
+non-empty folder is refused unless --force (which only ever replaces a suite
+folder).
+
+twin15 is written 800 scenarios at a time (memory stays that of 800, about
+0.7 GB per process, whatever --scenarios; 40-70 s per 800 on 2 cores). --scenarios N (a
+multiple of 800) scales the splits (N/2, N/4, N/4) and label counts; the suite
+is named twin15x<N/800>. suite.json's meta records pack_sizes, so
+drivee2e_jax.scenario.stream reads the suite shard by shard without a pre-pass.
+A killed run leaves .<DIR>.partial next to DIR: the same command resumes
+after the blocks already written. See docs/suite_format.md (Large suites).
 """
 
 INFO_EPILOG = """\
@@ -90,6 +101,8 @@ def add_parser(subparsers) -> None:
     g.add_argument("--seed", type=int, default=0, help="generator seed (default: 0)")
     g.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder to write (new or empty)")
     g.add_argument("--force", action="store_true", help="replace an existing suite folder at DIR")
+    g.add_argument("--scenarios", type=int, default=None, metavar="N",
+                   help="number of scenarios, a multiple of 800 (twin15 only; default: 800)")
     g.set_defaults(func=run_generate)
 
     i = common.add_command(
@@ -138,19 +151,45 @@ def add_parser(subparsers) -> None:
 
 def run_generate(args) -> int:
     from drivee2e_jax.scenario.schema import write_suite
-    from drivee2e_jax.scenario.suite import generate_suite
+    from drivee2e_jax.scenario.suite import BUILTIN_SUITES, generate_suite
 
     out: Path = args.out
     if out.exists() and out.is_dir() and any(out.iterdir()) and not args.force:
         # Fail before spending seconds on generation.
         raise common.DriveE2EError(f"{out} exists and is not empty; expected a new or empty folder "
                                    "(pass --force to replace a suite folder)")
+    module = importlib.import_module(BUILTIN_SUITES[args.name][0]) if args.name in BUILTIN_SUITES else None
+    if module is not None and hasattr(module, "generate_to"):  # streamed block by block (bounded memory)
+        return _generate_streamed(args, module)
+    if args.scenarios is not None and module is not None:
+        raise common.DriveE2EError(f"--scenarios: built-in suite {args.name!r} has a fixed size; expected "
+                                   "no --scenarios (only twin15 scales)")
     t0 = time.perf_counter()
     print(f"generating {args.name} (seed {args.seed}) ...", file=sys.stderr)
     records = generate_suite(args.name, args.seed)
     write_suite(records, out, overwrite=args.force, progress=True)
     print(f"wrote {len(records.scenarios)} scenarios, {len(records.maps)} maps to {out} "
           f"({time.perf_counter() - t0:.1f} s)")
+    return common.EXIT_OK
+
+
+def _generate_streamed(args, module) -> int:
+    from drivee2e_jax.progress import ProgressBars
+
+    n = module.NUM_SCENARIOS if args.scenarios is None else args.scenarios
+    name = module.suite_name(n)  # checks n (a one-line error for a bad --scenarios)
+    partial = args.out.parent / f".{args.out.name}.partial"
+    t0 = time.perf_counter()
+    print(f"generating {name}: {n} scenarios (seed {args.seed}) into {args.out} ..."
+          + (f" (resuming from {partial} if it is the same generation)" if partial.is_dir() else ""),
+          file=sys.stderr)
+    bars = ProgressBars(unit="scenario")
+    try:
+        module.generate_to(args.out, args.seed, num_scenarios=n, overwrite=args.force, progress=bars)
+    finally:
+        bars.close()
+    num_maps = len(list((args.out / "maps").glob("*.json")))
+    print(f"wrote {n} scenarios, {num_maps} maps to {args.out} ({time.perf_counter() - t0:.1f} s)")
     return common.EXIT_OK
 
 

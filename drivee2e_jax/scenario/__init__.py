@@ -2,12 +2,16 @@
 
 * ``records``  host-side dataclasses (the on-disk schema in Python)
 * ``schema``   suite folders <-> records, with validation naming file and field
-  (``validate``: the checks; ``encode``: records -> JSON; ``problems``: Problem)
+  (``validate``: the checks; ``encode``: records -> JSON; ``problems``: Problem);
+  ``SuiteWriter`` writes a large suite block by block
 * ``pack``     records -> padded ``types.Scenario`` batch + host meta table
   (``batch``: the PackedBatch container; ``sizes``: PackSizes and the leaf
   table; ``flat``: dotted-path flattening; ``routes``: route spacing,
   densifying and commands)
 * ``suite``    ``load_suite("twin15" | folder)`` with a packed on-disk cache
+  (``meta``: SuiteMeta, ``cache``: the cache key and sidecar, both without JAX)
+* ``stream``   suites larger than memory: ``SuiteIndex.open(folder)`` (suite.json
+  and maps only), ``shards(index, split, n)`` (read and packed shard by shard)
 """
 
 import importlib
