@@ -16,7 +16,7 @@ examples:
   drivee2e bench --policy ad_mlp:checkpoint=runs/ad_mlp/checkpoints/3,name=ad_mlp_e3 --policy stop
   drivee2e bench --policy expert --preset nuplan --agents idm --collisions at_fault --out results/nuplan-idm
   drivee2e bench --coordinator 10.0.0.1:4000 --num-processes 2 --process-id 0   # and --process-id 1 elsewhere
-  drivee2e bench --suite suites/twin15_8k --split val --shard-size 800 --policy log_replay   # a suite larger than memory
+  drivee2e bench --suite path/to/suite --shard-size 2 --policy log_replay --out results/streamed   # read shard by shard
 
 Reference policies can be named without a path: log_replay, expert, stop,
 constant_velocity. --open-loop adds L2 at 1/2/3 s (ST-P3 and UniAD

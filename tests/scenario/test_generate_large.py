@@ -16,31 +16,18 @@ import pytest
 from drivee2e_jax import cli
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario import twin15
-from drivee2e_jax.scenario.encode import dumps, jsonify, scenario_obj
 from drivee2e_jax.scenario.schema import SuiteWriter, read_suite, write_suite
 from drivee2e_jax.scenario.sizes import PackSizes
 from drivee2e_jax.scenario.twin15 import build
 from drivee2e_jax.scenario.twin15.scenarios import PER_200, id_width
 from tests.helpers.tiny_suite import build_tiny_suite
 
-#: sha256 of scenario files of the 800-scenario suite (seed 0) as written
-#: before N became a parameter (``drivee2e suite generate`` at commit fbb6faa).
-GOLDEN_800 = {
-    "twin15_0000": "9b2ad04c0d002d4b1124fe939b0f88b23d491102df902841d0c47216ecd8b33e",
-    "twin15_0417": "bf02cb4814de5af30fe7012e88094af7babc0e8320551e0f423803a081137efd",
-    "twin15_0799": "7d13bb495ad2e7ea9a8947156d4b08756f7d425f4a0629d9167c03bdf51d0bce",
-}
-
-
-def _file_text(s) -> str:
-    return dumps(jsonify(scenario_obj(s)))
-
-
-def test_800_scenarios_unchanged():
-    suite = twin15.generate(0, scenarios=[0, 417, 799], workers=1)
-    assert suite.name == "twin15" and "num_scenarios" not in suite.meta
-    got = {s.scenario_id: hashlib.sha256(_file_text(s).encode()).hexdigest() for s in suite.scenarios}
-    assert got == GOLDEN_800
+# N = 800 is unchanged: its plan below (RNG draws only, the same on every
+# machine) and its simulated logs through tests/eval/test_golden.py (twin15
+# val's results of four policies). The logs themselves are not pinned by hash
+# here: the traffic simulation's floats depend on the CPU's numpy SIMD paths
+# (on an AVX2-only AMD EPYC, twin15_0000's route is 129.48 m at fbb6faa, where
+# the machine that stored the golden results made 128.77 m).
 
 
 def test_1600_counts_from_assign():
