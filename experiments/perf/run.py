@@ -284,7 +284,7 @@ def against_waymax(args, batches: list[int]) -> int:
                          "(bash ../shared/anchors/waymax/setup.sh <waymax git dir> ../wmx makes ../wmx/venv/bin/python)")
     if not WAYMAX_STEP.is_file():
         raise SystemExit(f"--against-waymax: {WAYMAX_STEP} is missing; expected ../shared/anchors/waymax beside the project")
-    stub = py.resolve().parents[2] / "stub"
+    stub = Path(os.path.abspath(py)).parents[2] / "stub"  # the venv python is a symlink: do not resolve it
     wenv = dict(os.environ, PYTHONPATH=str(stub))
     configs = [c for c in args.configs.split(",") if c in ("state_only", "state_obs")] or ["state_only"]
     best: dict[tuple[str, int], float] = {}
