@@ -169,7 +169,7 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     run_info = {**spec.to_json(),  # run.json: the spec + what resuming must also match
                 "fingerprint": {"suite_sha256": batch_sha256(evaluated),
                                 "drivee2e_version": package_version()}}
-    source = None if cfg.shard_size is None else _InMemoryShards(evaluated, cfg.shard_size, suite)
+    source = None if cfg.shard_size is None else _InMemoryShards(evaluated, cfg.shard_size)
     return _open_and_run(cfg, spec, run_info, out, suite.name, suite.version, run_batch, task, policies,
                          fingerprints, policy_kwargs, names, multi, print_fn, source, lambda: suite.maps)
 
@@ -195,14 +195,11 @@ def check_streamable(cfg: BenchConfig, multi: bool) -> None:
 class _InMemoryShards:
     """The shards of an in-memory run (a built-in suite): its evaluated batch cut in ``size`` rows."""
 
-    def __init__(self, packed, size: int, suite):
-        self.packed, self.size, self.suite = packed, size, suite
+    def __init__(self, packed, size: int):
+        self.packed, self.size = packed, size
 
     def shards(self):
         return shards_of(self.packed, self.size)
-
-    def maps(self) -> dict:
-        return self.suite.maps
 
 
 class _FolderShards:
@@ -223,9 +220,6 @@ class _FolderShards:
             check_dt_against_logs(self.dt, packed.meta)
             seen += len(rows)
             yield rows, packed
-
-    def maps(self) -> dict:
-        return self.index.maps
 
 
 def folder_fingerprint(index, split: str, n: int) -> str:
