@@ -19,6 +19,7 @@ A policy file (``--policy path/to/file.py``) defines either a module-level
 from __future__ import annotations
 
 import json
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -37,7 +38,7 @@ ActionType = Literal["controls", "waypoints"]
 DEFAULT_POLICIES = ("log_replay", "expert", "stop")
 #: Rule-based policies of the zoo (``drivee2e_jax/zoo/``), accepted by name and
 #: runnable without a checkpoint. ``reference_policy_names()`` lists every
-#: policy the zoo ships (the learned ones need a checkpoint argument).
+#: policy the zoo ships (the learned ones load bundled weights or a checkpoint argument).
 REFERENCE_POLICIES = (*DEFAULT_POLICIES, "constant_velocity")
 
 
@@ -196,6 +197,30 @@ def reference_policy_dir() -> Path:
     """The policy zoo's folder, ``drivee2e_jax/zoo/`` (inside the installed
     package, so names resolve from any directory and from a wheel)."""
     return Path(__file__).resolve().parent / "zoo"
+
+
+#: Environment variable naming another folder of bundled zoo weights (tests, your own exports).
+ZOO_WEIGHTS_ENV = "DRIVEE2E_ZOO_WEIGHTS"
+
+
+def zoo_weights_dir() -> Path:
+    """The folder of the zoo's bundled weights (``models.bundled``):
+    ``$DRIVEE2E_ZOO_WEIGHTS`` when set, else ``drivee2e_jax/zoo/weights/``."""
+    env = os.environ.get(ZOO_WEIGHTS_ENV, "").strip()
+    return Path(env).expanduser() if env else reference_policy_dir() / "weights"
+
+
+def zoo_weight_files(policy_path: str | Path) -> list[Path]:
+    """The bundled weight files a zoo policy file may load (``<stem>.*`` and,
+    for a variant such as ``tcp_traj``, its family's ``tcp.*``): what a
+    results folder fingerprints besides the policy file. [] for a file
+    outside the zoo."""
+    p = Path(policy_path)
+    if p.suffix != ".py" or p.resolve().parent != reference_policy_dir():
+        return []
+    stems = {p.stem, p.stem.split("_")[0]}
+    wdir = zoo_weights_dir()
+    return sorted(f for f in wdir.glob("*.*") if f.stem in stems) if wdir.is_dir() else []
 
 
 def reference_policy_names() -> tuple[str, ...]:

@@ -107,6 +107,10 @@ def test_stdlib_floor_scan_finds_imports(tmp_path):
     assert {k: v for k, (v, _) in found.items()} == {"typing.Self": (3, 11), "itertools.batched": (3, 12)}
 
 
+#: The name of the weights pair the ``wheel`` fixture adds to its copy of the package.
+WEIGHTS_PROBE = "packaging_probe"
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> zipfile.ZipFile:
     """The wheel built from a copy of this checkout's package files (so no
@@ -116,6 +120,10 @@ def wheel(tmp_path_factory) -> zipfile.ZipFile:
     for name in ("pyproject.toml", "README.md"):
         shutil.copy(REPO / name, src / name)
     shutil.copytree(PACKAGE, src / PACKAGE.name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    probe = src / PACKAGE.name / "zoo" / "weights"  # a weights pair, so the package-data rule is tested
+    probe.mkdir(exist_ok=True)  # whether or not the checkout bundles any yet
+    for suffix in (".npz", ".json"):
+        (probe / f"{WEIGHTS_PROBE}{suffix}").write_bytes(b"{}")
     proc = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "--no-build-isolation", "--no-index",
          "-w", str(out), str(src)],
@@ -136,6 +144,20 @@ def test_the_wheel_holds_every_module_the_zoo_and_the_player(wheel):
     assert "drivee2e_jax/scenario/examples/tiny/suite.json" in expected  # the example suite, loadable by name
     missing = sorted(expected - names)
     assert not missing, "not in the wheel: " + ", ".join(missing)
+
+
+def test_the_wheel_holds_the_zoo_weights(wheel):
+    """``drivee2e_jax/zoo/weights/*.npz`` + ``*.json`` (the zoo's bundled
+    weights, ``models/bundled.py``) are package data: the fixture's probe pair
+    and every pair of this checkout are in the wheel, each npz with its json."""
+    names = set(wheel.namelist())
+    weights = "drivee2e_jax/zoo/weights"
+    assert {f"{weights}/{WEIGHTS_PROBE}.npz", f"{weights}/{WEIGHTS_PROBE}.json"} <= names, "package-data lacks weights"
+    here = sorted(p for p in (PACKAGE / "zoo" / "weights").glob("*") if p.suffix in (".npz", ".json"))
+    missing = sorted({p.relative_to(REPO).as_posix() for p in here} - names)
+    assert not missing, "bundled weights not in the wheel: " + ", ".join(missing)
+    stems = {suffix: {p.stem for p in here if p.suffix == suffix} for suffix in (".npz", ".json")}
+    assert stems[".npz"] == stems[".json"], f"weights without their pair: {stems}"
 
 
 def _normal(requirement: str) -> tuple[str, SpecifierSet]:

@@ -84,7 +84,7 @@ from drivee2e_jax.files import (
     sha256_file,
     sha256_tree,
 )
-from drivee2e_jax.policy import reference_policy_dir
+from drivee2e_jax.policy import reference_policy_dir, zoo_weight_files
 from drivee2e_jax.remote import is_remote_spec
 
 
@@ -402,7 +402,9 @@ def policy_fingerprint(path: str | Path, kwargs: dict, *, remote_name: str = "")
 
     A file policy: ``sha256`` of the file, its ``make_policy`` ``kwargs`` and,
     for every keyword whose value names an existing file or folder (a
-    checkpoint), ``files_sha256[key]`` = ``files.sha256_tree`` of it. Only the
+    checkpoint), ``files_sha256[key]`` = ``files.sha256_tree`` of it; for a
+    zoo policy without a checkpoint, ``bundled_sha256`` of the weights it
+    loads (``policy.zoo_weight_files``). Only the
     policy file itself is hashed, not the modules it imports (a change in
     drivee2e itself is caught by the run's package version). A remote policy
     (``remote://``): the spec and the server's reported name; it is never
@@ -410,7 +412,12 @@ def policy_fingerprint(path: str | Path, kwargs: dict, *, remote_name: str = "")
     if is_remote_spec(path):
         return {"remote": str(path), "server_name": remote_name}
     files = {k: sha256_tree(v) for k, v in sorted(kwargs.items()) if isinstance(v, str) and v and Path(v).exists()}
-    return _plain({"sha256": sha256_file(path), "kwargs": dict(kwargs), "files_sha256": files})
+    out = {"sha256": sha256_file(path), "kwargs": dict(kwargs), "files_sha256": files}
+    if "checkpoint" not in kwargs:
+        bundled = {f.name: sha256_file(f) for f in zoo_weight_files(path)}
+        if bundled:  # the zoo's shipped weights decide its learned policies' results
+            out["bundled_sha256"] = bundled
+    return _plain(out)
 
 
 def policy_provenance(path: str | Path, kwargs: dict, fingerprint: dict, folder: str | Path) -> dict:

@@ -17,7 +17,11 @@ Usage: ``load_policy("drivee2e_jax/zoo/tcp.py", checkpoint=RUN_DIR)`` or
 where RUN_DIR is a ``drivee2e train --model tcp`` run folder, its
 ``checkpoints/`` or one ``checkpoints/<epoch>`` (the model config is read
 from the checkpoint; ``models.base.policy_from_checkpoint``). Without a
-checkpoint the parameters are a fresh random init (smoke tests only). The
+checkpoint the bundled weights ``drivee2e_jax/zoo/weights/<name>.npz`` of
+the mode's policy name are loaded (``tcp``, ``tcp_traj``, ``tcp_ctrl``; the
+latter two fall back to the ``tcp`` pair: one network, two heads;
+``models.bundled``, docs/baselines.md "Policy zoo"); with none bundled (or
+``bundled=False``) the parameters are a fresh random init (smoke tests only). The
 simulator renders the BEV the training data was rendered at (the dataset's
 ``--bev-size``, recorded in its manifest; 128 x 128 at 0.5 m/px by default,
 which the model max-pools to its 64 x 64; ``--bev-size 64`` renders TCP's
@@ -27,11 +31,14 @@ own input, 4x cheaper); a ``SimConfig`` that sets another BEV is refused.
 from __future__ import annotations
 
 from drivee2e_jax.models import base
+from drivee2e_jax.zoo._weights import learned_policy
 
 MODES = {"fused": "tcp", "traj": "tcp_traj", "ctrl": "tcp_ctrl"}
 
 
-def make_policy(checkpoint=None, mode: base.Mode = "fused", **config) -> base.ModelPolicy:
+def make_policy(checkpoint=None, mode: base.Mode = "fused", bundled: bool = True, **config) -> base.ModelPolicy:
     if mode not in MODES:
         raise ValueError(f"tcp: mode must be one of {', '.join(MODES)}, got {mode!r}")
-    return base.policy_from_checkpoint("tcp", checkpoint, mode, name=MODES[mode], **config)
+    name = MODES[mode]
+    return learned_policy("tcp", mode, name, checkpoint, bundles=tuple(dict.fromkeys((name, "tcp"))),
+                          bundled=bundled, **config)

@@ -16,8 +16,9 @@ from drivee2e_jax.types import Waypoints
 POLICY = Path(__file__).resolve().parents[2] / "drivee2e_jax" / "zoo" / "ad_mlp.py"
 
 
-def test_needs_a_checkpoint(monkeypatch):
+def test_needs_a_checkpoint(monkeypatch, tmp_path):
     monkeypatch.delenv("DRIVEE2E_AD_MLP_CHECKPOINT", raising=False)
+    monkeypatch.setenv("DRIVEE2E_ZOO_WEIGHTS", str(tmp_path))  # no bundled weights either
     with pytest.raises(DriveE2EError, match="checkpoint=.*DRIVEE2E_AD_MLP_CHECKPOINT"):
         load_policy(POLICY)
 
