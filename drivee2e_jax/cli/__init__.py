@@ -18,7 +18,7 @@ from drivee2e_jax.cli import common
 
 #: Subcommand modules, in the order ``drivee2e --help`` lists them. A module's
 #: command name is its name with "_" -> "-" (``export_mcap`` -> ``export-mcap``).
-SUBCOMMANDS = ("bench", "sweep", "suite", "dataset", "train", "finetune", "trend", "view", "export_mcap", "serve_policy", "check_policy")
+SUBCOMMANDS = ("bench", "sweep", "suite", "dataset", "train", "finetune", "rl", "trend", "view", "export_mcap", "serve_policy", "check_policy")
 
 DESCRIPTION = """\
 drivee2e: a JAX ego-closed-loop replay benchmark for end-to-end driving policies.

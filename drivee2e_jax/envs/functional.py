@@ -45,6 +45,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from drivee2e_jax.metrics import episode as ep
+from drivee2e_jax.metrics.comfort import B2D_BOUNDS
 from drivee2e_jax.metrics.driving_score import PENALTIES
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.scenario import PackedBatch, load_suite
@@ -89,6 +90,12 @@ class RewardConfig:
         penalty for it.
       invalid_action: penalty per step whose action was out of range or
         non-finite (clipped / replaced by a full brake by the simulator).
+      comfort: metres taken off per step whose ego motion leaves
+        Bench2Drive's comfort bounds (``metrics.comfort.B2D_BOUNDS``:
+        longitudinal acceleration in (-4.05, 2.40) m/s^2, lateral
+        acceleration speed x yaw rate within 4.89 m/s^2, yaw rate within
+        0.95 rad/s), as CaRL's comfort term; 0 (off) by default. Not scaled
+        by the route length.
     """
 
     progress: float = 1.0
@@ -100,6 +107,7 @@ class RewardConfig:
     red_light: float = 1.0 - _LB20["red_light"]
     failure: float = 0.0
     invalid_action: float = 0.0
+    comfort: float = 0.0
 
     def __call__(self, scenario: Scenario, prev: SimState, new: SimState, log: StepLog, config: SimConfig):
         """() float32 reward of the step ``prev`` -> ``new`` (``log`` its StepLog)."""
@@ -118,7 +126,24 @@ class RewardConfig:
             + self.invalid_action * (e.invalid_action & log.active)
         )
         scale = route.length if self.penalty_scale_m is None else self.penalty_scale_m
-        return (self.progress * progress - scale * units).astype(jnp.float32)
+        reward = self.progress * progress - scale * units
+        if self.comfort:
+            reward = reward - self.comfort * (uncomfortable(new.ego) & log.active)
+        return reward.astype(jnp.float32)
+
+
+_BOUNDS = {k: (lo, hi) for k, lo, hi in B2D_BOUNDS}
+
+
+def uncomfortable(ego) -> jnp.ndarray:
+    """() bool: the ego's last step left Bench2Drive's comfort bounds
+    (longitudinal / lateral acceleration, yaw rate; unsmoothed, per step)."""
+    lat = ego.speed * ego.yaw_rate
+    out = jnp.zeros((), bool)
+    for name, x in (("lon_acc", ego.accel), ("lat_acc", lat), ("yaw_rate", ego.yaw_rate)):
+        lo, hi = _BOUNDS[name]
+        out = out | (x <= lo) | (x >= hi)
+    return out
 
 
 # --------------------------------------------------------------------------

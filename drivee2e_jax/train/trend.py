@@ -42,7 +42,7 @@ from drivee2e_jax.train.loop import model_of_run
 #: trend.csv columns, in order. l2_* follow ST-P3 (mean over the steps up to
 #: k s), *_uniad the value at k s; rates in [0, 1]; SR in %, DS in [0, 100].
 COLUMNS = (
-    "checkpoint", "epoch", "step", "train_loss", "l2_1s", "l2_2s", "l2_1s_uniad", "l2_2s_uniad",
+    "checkpoint", "epoch", "step", "env_steps", "train_loss", "l2_1s", "l2_2s", "l2_1s_uniad", "l2_2s_uniad",
     "openloop_collision_rate", "openloop_samples", "success_rate", "driving_score", "route_completion",
     "num_scenarios", "eval_s",
 )
@@ -99,6 +99,7 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
             t0 = time.perf_counter()
             got = evaluate_checkpoint(policy, ckpt.load_params(c), packed, maps, limit=limit, seed=seed)
             row = {"checkpoint": str(c), "epoch": int(meta["epoch"]), "step": int(meta.get("step", 0)),
+                   "env_steps": meta.get("env_steps"),  # PPO runs: environment steps trained on
                    "train_loss": meta.get("train_loss"), **got, "eval_s": round(time.perf_counter() - t0, 1)}
             atomic_write_json(row_file, row)
             print_fn(f"[epoch {row['epoch']}] L2 1s {_fmt(row['l2_1s'])} m, 2s {_fmt(row['l2_2s'])} m, "
@@ -117,9 +118,13 @@ def _fmt(v, digits: int = 3) -> str:
 
 
 def _run_suite(run_dir: Path) -> str:
-    """The suite the run's dataset was recorded from (twin15 if unknown)."""
+    """The suite the run's dataset was recorded from, or a PPO run's suite
+    (twin15 if unknown)."""
     try:
-        data = json.loads((run_dir / "config.json").read_text())["data"]
+        cfg = json.loads((run_dir / "config.json").read_text())
+        if "ppo" in cfg:
+            return cfg["ppo"]["suite"]
+        data = cfg["data"]
         return json.loads((Path(data) / "manifest.json").read_text())["suite"]
     except (OSError, ValueError, KeyError):
         return "twin15"

@@ -48,7 +48,7 @@ REPO = Path(__file__).resolve().parents[2]
 #: not listed runs after these, in ``drivee2e --help`` order.
 ORDER = (
     ("suite", "generate"), ("suite",), ("suite", "info"), ("suite", "validate"), ("suite", "import"), (),
-    ("dataset", "build"), ("dataset",), ("dataset", "info"), ("train",), ("finetune",), ("bench",), ("trend",),
+    ("dataset", "build"), ("dataset",), ("dataset", "info"), ("train",), ("finetune",), ("rl",), ("bench",), ("trend",),
     ("sweep",), ("view",), ("export-mcap",), ("check-policy",), ("serve-policy",),
 )
 
@@ -60,6 +60,8 @@ FASTER = {
     ("view",): ["--limit", "2", "--no-sensors"],  # the BEV / LiDAR panes: ~20 s a page (see the docstring)
     ("train",): ["--batch-size", "16"],
     ("finetune",): ["--steps", "2", "--horizon", "5", "--batch", "2", "--ckpt-every", "1"],
+    ("rl",): ["--envs", "4", "--rollout-steps", "4", "--minibatches", "2", "--epochs", "1", "--env-steps", "32",
+              "--limit", "4", "--ckpt-every", "1"],
 }
 
 #: Examples not run here: (text in the example, why, the test that covers it).
