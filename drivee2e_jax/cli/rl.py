@@ -133,7 +133,8 @@ def run(args) -> int:
                     time_limit_s=None if args.time_limit is None else 60.0 * args.time_limit)
     last = res["last"]
     if last:
-        print(f"last update: episode return {last.get('episode_return')}, DS {last.get('episode_ds')}, "
-              f"{last['env_steps_per_s']:.0f} env-steps/s")
+        episodes = (f"{last['episodes']} episodes ended, mean return {last['episode_return']:.1f} m, "
+                    f"DS {last['episode_ds']:.1f}" if last.get("episodes") else "no episode ended")
+        print(f"last update: {episodes}; {last['env_steps_per_s']:.0f} env-steps/s")
     print(f"checkpoints in {args.out / 'checkpoints'}: {len(res['checkpoints'])}")
     return 0

@@ -48,7 +48,8 @@ RUNS = {
     "ppo_ft": (True, ["--env-steps", "3000000", "--critic-warmup", "10", "--lr", "1e-5", "--critic-lr", "3e-4",
                       "--epochs", "2", "--init-log-std", "-1.2", "--ckpt-every", "50"], 40.0),
 }
-SMOKE = ["--envs", "8", "--rollout-steps", "8", "--minibatches", "2", "--ckpt-every", "2", "--limit", "8"]
+SMOKE = ["--envs", "8", "--rollout-steps", "8", "--minibatches", "2", "--ckpt-every", "2", "--limit", "8",
+         "--env-steps", "256"]
 
 
 def trained_minutes(run_dir: Path) -> float:
