@@ -56,7 +56,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--env-steps", type=int, default=1_000_000, help="total environment steps (default: 1000000)")
     p.add_argument("--epochs", type=int, default=4, help="PPO passes over each rollout (default: 4)")
     p.add_argument("--minibatches", type=int, default=4, help="minibatches per pass (default: 4)")
-    p.add_argument("--lr", type=float, default=3e-4, help="Adam step size (default: 3e-4)")
+    p.add_argument("--lr", type=float, default=3e-4, help="Adam step size of the actor (default: 3e-4)")
     p.add_argument("--critic-lr", type=float, default=None, help="Adam step size of the critic (default: --lr)")
     p.add_argument("--gamma", type=float, default=0.99, help="discount per 0.1 s step (default: 0.99)")
     p.add_argument("--gae-lambda", type=float, default=0.95, help="GAE lambda (default: 0.95)")
@@ -68,7 +68,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--init-log-std", type=float, default=-1.0,
                    help="initial log-std of each waypoint coordinate, log m (default: -1.0, i.e. 0.37 m)")
     p.add_argument("--critic-warmup", type=int, default=0, help="first updates that train only the critic (default: 0)")
-    p.add_argument("--reward", default="", help="RewardConfig overrides as k=v,... (see above)")
+    p.add_argument("--reward", default="", help="RewardConfig overrides as k=v,... (the fields are listed below)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default: 0)")
     p.add_argument("--log-every", type=int, default=1, help="updates between log lines (default: 1)")
     p.add_argument("--ckpt-every", type=int, default=50, help="updates between checkpoints (default: 50)")

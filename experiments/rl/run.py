@@ -4,7 +4,8 @@
     python experiments/rl/run.py --out results/rl --runs runs/rl --init ... --minutes ppo_scratch=120,ppo_ft=40
     python experiments/rl/run.py --out /tmp/rl-smoke --runs /tmp/rl-runs --init RUN --smoke   # minutes, not hours
 
-1. **Train** each run of ``RUNS`` below with ``drivee2e rl`` (fixed
+1. **Train** each run of ``RUNS`` below (from scratch; fine-tuning; the
+   fine-tuning with gamma 0.999) with ``drivee2e rl`` (fixed
    hyperparameters, one seed) for its training-time budget (``--minutes``;
    ``drivee2e rl --time-limit``). A run stopped by its budget or interrupted
    continues with ``--resume`` (exactly: the checkpoint holds the environments
@@ -47,6 +48,10 @@ RUNS = {
                             "--ckpt-every", "50"], 40.0),
     "ppo_ft": (True, ["--env-steps", "3000000", "--critic-warmup", "10", "--lr", "1e-5", "--critic-lr", "3e-4",
                       "--epochs", "2", "--init-log-std", "-1.2", "--ckpt-every", "50"], 40.0),
+    # ppo_ft with gamma 0.999: at 0.99 per 0.1 s step, progress delayed 20 s by a red light is
+    # discounted to 0.13, far more than the red light's penalty costs (ppo_ft lost its STP stops).
+    "ppo_ft_g999": (True, ["--env-steps", "3000000", "--critic-warmup", "10", "--lr", "1e-5", "--critic-lr", "3e-4",
+                           "--epochs", "2", "--init-log-std", "-1.2", "--ckpt-every", "50", "--gamma", "0.999"], 25.0),
 }
 SMOKE = ["--envs", "8", "--rollout-steps", "8", "--minibatches", "2", "--ckpt-every", "2", "--limit", "8",
          "--env-steps", "256"]
