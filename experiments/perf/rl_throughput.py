@@ -34,14 +34,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import run as perf_run  # noqa: E402  (experiments/perf/run.py)
 
 
-def ppo_rates(model_name: str, envs: int, rollout_steps: int, updates: int, suite: str, split: str) -> dict:
+def ppo_rates(model_name: str, envs: int, rollout_steps: int, updates: int, suite: str, split: str,
+              epochs: int = 4) -> dict:
     import jax
 
     from drivee2e_jax.envs.functional import make_params
     from drivee2e_jax.models.registry import get_model
     from drivee2e_jax.train import ppo
 
-    cfg = ppo.PPOConfig(suite=suite, split=split, model=model_name, num_envs=envs, rollout_steps=rollout_steps)
+    cfg = ppo.PPOConfig(suite=suite, split=split, model=model_name, num_envs=envs, rollout_steps=rollout_steps,
+                        update_epochs=epochs)
     learner = ppo.PPO(get_model(model_name), make_params(suite, split), cfg)
     runner = learner.init(jax.random.PRNGKey(0))
     t0 = time.perf_counter()
@@ -73,6 +75,7 @@ def main(argv=None) -> int:
     ap.add_argument("--envs", type=int, default=64, help="parallel environments = state-only batch (default: 64)")
     ap.add_argument("--rollout-steps", type=int, default=32, help="steps per environment per update (default: 32)")
     ap.add_argument("--updates", type=int, default=5, help="timed PPO updates per round (default: 5)")
+    ap.add_argument("--epochs", type=int, default=4, help="PPO epochs per update (default: 4; the RL study uses 2)")
     ap.add_argument("--steps", type=int, default=160, help="timed state-only steps per round (default: 160)")
     ap.add_argument("--rounds", type=int, default=2, help="interleaved rounds (default: 2)")
     ap.add_argument("--suite", default="twin15")
@@ -84,8 +87,8 @@ def main(argv=None) -> int:
     for r in range(args.rounds):
         load = os.getloadavg()[0]
         so = perf_run.measure(args.suite, args.envs, 10, args.steps)
-        pp = ppo_rates(args.model, args.envs, args.rollout_steps, args.updates, args.suite, args.split)
-        row = {"round": r + 1, "envs": args.envs, "model": args.model, "load_1m": round(load, 2),
+        pp = ppo_rates(args.model, args.envs, args.rollout_steps, args.updates, args.suite, args.split, args.epochs)
+        row = {"round": r + 1, "envs": args.envs, "model": args.model, "epochs": args.epochs, "load_1m": round(load, 2),
                "state_only_scenario_steps_per_s": so["scenario_steps_per_s"], **pp}
         for k, v in row.items():
             if k.endswith("_per_s"):
