@@ -401,10 +401,19 @@ def policy_from_checkpoint(model_name: str, checkpoint=None, mode: Mode = "traj"
         config = {**config, **meta.get("model_config", {})}
         params = ckpt.restore(path)["params"]
         bev = training_bev(meta)
+    return policy_from_params(model_name, params, mode, name, bev=bev, origin=str(checkpoint), **config)
+
+
+def policy_from_params(model_name: str, params, mode: Mode = "traj", name: str | None = None, *,
+                       bev=None, origin: str = "", **config) -> ModelPolicy:
+    """``model_name`` built with ``config`` and driven in ``mode`` with
+    ``params`` (None: a fresh random init); ``bev`` (the BEV its training data
+    was rendered at, or None) becomes the policy's ``sensor_config`` after
+    ``check_bev`` (errors name ``origin``). Shared by checkpoints
+    (``policy_from_checkpoint``) and the zoo's bundled weights."""
     model = get_model(model_name, **config)
     sensor_config = None
     if bev is not None:
-
-        check_bev(bev, model, f"{checkpoint} (its training data)")
+        check_bev(bev, model, f"{origin} (its training data)")
         sensor_config = SensorConfig(bev=bev)
     return ModelPolicy(model, params, mode, name=name, sensor_config=sensor_config)

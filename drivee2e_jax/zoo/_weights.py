@@ -11,9 +11,6 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.models import base
 from drivee2e_jax.models import bundled as bw
 from drivee2e_jax.models.checkpoint import bev_of_manifest
-from drivee2e_jax.models.registry import get_model
-from drivee2e_jax.observe.bev import check_bev
-from drivee2e_jax.observe.sensors import SensorConfig
 
 
 def bundled_name(names: tuple[str, ...]) -> str | None:
@@ -31,14 +28,10 @@ def policy_from_bundled(bundle: str, model_name: str, mode: base.Mode, name: str
     _, jpath = bw.bundled_paths(bundle)
     if stored_model != model_name:
         raise DriveE2EError(f"{jpath}: weights of a {stored_model!r} model, expected {model_name!r}")
-    model = get_model(model_name, **{**config, **model_config})
-    sensor_config = None
     data_bev = bw.read_info(bundle).get("data_bev")
-    if data_bev:
-        bev = bev_of_manifest({"sensors": ["bev"], "bev": data_bev})
-        check_bev(bev, model, f"{jpath} (its training data)")
-        sensor_config = SensorConfig(bev=bev)
-    return base.ModelPolicy(model, params, mode, name=name, sensor_config=sensor_config)
+    bev = bev_of_manifest({"sensors": ["bev"], "bev": data_bev}) if data_bev else None
+    return base.policy_from_params(model_name, params, mode, name, bev=bev, origin=str(jpath),
+                                   **{**config, **model_config})
 
 
 def learned_policy(model_name: str, mode: base.Mode, name: str, checkpoint=None, *, bundles: tuple[str, ...] = (),
