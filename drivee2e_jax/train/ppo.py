@@ -351,8 +351,9 @@ class PPO:
         mean = self._mean(params["actor"], hobs)
         action = mean + jnp.exp(params["log_std"]) * jax.random.normal(key, mean.shape)
         logp = log_prob(action, mean, params["log_std"])
-        value = self._value(params["critic"], obs, state)
-        return hobs.replace(privileged=None), hist, action, logp, value
+        extra = self._extra(state)
+        value = self.critic.apply(params["critic"], features(obs, extra))
+        return hobs.replace(privileged=None), hist, action, logp, value, extra
 
     def _collect(self, runner: Runner):
         cfg, params = self.cfg, runner.params
@@ -360,9 +361,8 @@ class PPO:
         def step(carry, _):
             env_state, history, obs, key = carry
             key, k_act, k_env = jax.random.split(key, 3)
-            hobs, hist, action, logp, value = jax.vmap(self._act_one, in_axes=(None, 0, 0, 0, 0))(
+            hobs, hist, action, logp, value, extra = jax.vmap(self._act_one, in_axes=(None, 0, 0, 0, 0))(
                 params, obs, history, env_state, jax.random.split(k_act, cfg.num_envs))
-            extra = jax.vmap(self._extra)(env_state)
             obs2, env_state2, reward, done, info = jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(
                 jax.random.split(k_env, cfg.num_envs), env_state, Waypoints(xy=action), self.env_params)
             fresh = jax.vmap(base.empty_history)(obs2)
