@@ -170,15 +170,28 @@ def load_bundled(name: str, root: str | Path | None = None) -> tuple[str, dict, 
     return info["model"], dict(info["model_config"]), unflatten_params(flat)
 
 
-def _check_val(val: Any) -> dict | None:
+def _check_val(val: Any, where: str = "info['val']") -> dict | None:
     if val is None:
         return None
     if not isinstance(val, dict) or set(val) != set(VAL_KEYS):
-        raise DriveE2EError(f"info['val']: expected null or {{{', '.join(VAL_KEYS)}}}, got {val!r}")
+        raise DriveE2EError(f"{where}: expected null or {{{', '.join(VAL_KEYS)}}}, got {val!r}")
     try:
         return {k: float(val[k]) for k in VAL_KEYS}
     except (TypeError, ValueError) as e:
-        raise DriveE2EError(f"info['val']: expected numbers, got {val!r}") from e
+        raise DriveE2EError(f"{where}: expected numbers, got {val!r}") from e
+
+
+def _check_variants(variants: Any) -> dict:
+    """{zoo name: val} of the other zoo names that drive the same weights in
+    another mode (``tcp_traj`` / ``tcp_ctrl`` on the ``tcp`` pair)."""
+    if variants is None:
+        return {}
+    if not isinstance(variants, dict):
+        raise DriveE2EError(f"info['variants']: expected {{zoo name: val}}, got {variants!r}")
+    for name in variants:
+        if not isinstance(name, str) or not _NAME.match(name):
+            raise DriveE2EError(f"info['variants']: name {name!r}: expected lower-case letters, digits and '_'")
+    return {n: _check_val(v, f"info['variants'][{n!r}]") for n, v in variants.items()}
 
 
 def export_bundled(checkpoint_path: str | Path, name: str, out_dir: str | Path, info: dict) -> tuple[Path, Path]:
@@ -190,7 +203,9 @@ def export_bundled(checkpoint_path: str | Path, name: str, out_dir: str | Path, 
       info: ``mode`` ("traj" / "ctrl" / "fused", required); ``training``
         (dict or text: command, data, epochs / steps), ``val`` (null or
         {driving_score, success_rate, route_completion}), ``measured_with``
-        (the bench command), optionally ``source`` (default: the resolved
+        (the bench command), optionally ``variants`` ({zoo name: val} for
+        the names that drive these weights in another mode, e.g. ``tcp_traj``
+        and ``tcp_ctrl`` on ``tcp``) and ``source`` (default: the resolved
         checkpoint folder and its epoch).
     Returns (npz path, json path). Raises DriveE2EError on a bad name, mode
     or val, or an unreadable checkpoint.
@@ -205,6 +220,7 @@ def export_bundled(checkpoint_path: str | Path, name: str, out_dir: str | Path, 
     if mode not in MODES:
         raise DriveE2EError(f"info['mode'] is {mode!r}, expected one of {', '.join(MODES)}")
     val = _check_val(info.get("val"))  # every check before anything is written
+    variants = _check_variants(info.get("variants"))
     path = ckpt.resolve(checkpoint_path)
     meta = ckpt.read_meta(path)
     if not isinstance(meta.get("model"), str):
@@ -225,6 +241,7 @@ def export_bundled(checkpoint_path: str | Path, name: str, out_dir: str | Path, 
         "training": info.get("training"),
         "val": val,
         "measured_with": info.get("measured_with"),
+        "variants": variants,
         "data_bev": None if bev is None else {"height": bev.height, "width": bev.width,
                                               "resolution": bev.resolution},
     }

@@ -49,6 +49,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--val-ds", type=float, default=None, help="twin15 val driving score (0-100)")
     p.add_argument("--val-sr", type=float, default=None, help="twin15 val success rate (%%)")
     p.add_argument("--val-rc", type=float, default=None, help="twin15 val route completion (0-100)")
+    p.add_argument("--variant", action="append", default=[], metavar="NAME=DS,SR,RC",
+                   help="val scores of another zoo name that drives these weights in another mode (repeatable; "
+                   "e.g. --variant tcp_traj=47.12,31.0,55.28 on the tcp pair)")
     p.add_argument("--measured-with", default=None,
                    help="the bench command the val numbers came from (default: drivee2e bench --policy NAME "
                    "--split val, when --val-* are given)")
@@ -63,7 +66,16 @@ def info_of(args: argparse.Namespace) -> dict:
     val = None if vals[0] is None else dict(zip(("driving_score", "success_rate", "route_completion"), vals))
     measured = args.measured_with or (f"drivee2e bench --policy {args.name} --split val" if val else None)
     training = {"command": args.training, "data": args.data, "epochs": args.epochs, "steps": args.steps}
-    return {"mode": args.mode, "training": training, "val": val, "measured_with": measured}
+    variants = {}
+    for text in args.variant:
+        name, _, nums = text.partition("=")
+        parts = nums.split(",")
+        try:
+            variants[name.strip()] = dict(zip(("driving_score", "success_rate", "route_completion"),
+                                              map(float, parts), strict=True))
+        except ValueError:
+            raise DriveE2EError(f"--variant {text!r}: expected NAME=DS,SR,RC (three numbers)") from None
+    return {"mode": args.mode, "training": training, "val": val, "measured_with": measured, "variants": variants}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -128,6 +128,10 @@ def test_export_refuses_a_bad_name_mode_or_val(run, tmp_path):
         bw.export_bundled(run, "vt", tmp_path, {**INFO, "mode": "waypoints"})
     with pytest.raises(DriveE2EError, match="info\\['val'\\]"):
         bw.export_bundled(run, "vt", tmp_path, {**INFO, "val": {"driving_score": 1.0}})
+    with pytest.raises(DriveE2EError, match="info\\['variants'\\]\\['vt_x'\\]"):
+        bw.export_bundled(run, "vt", tmp_path, {**INFO, "variants": {"vt_x": {"driving_score": 1.0}}})
+    with pytest.raises(DriveE2EError, match="info\\['variants'\\]: name 'Bad'"):
+        bw.export_bundled(run, "vt", tmp_path, {**INFO, "variants": {"Bad": None}})
     with pytest.raises(DriveE2EError, match="no checkpoint found"):
         bw.export_bundled(tmp_path / "nothing", "vt", tmp_path, INFO)
     assert not list(tmp_path.glob("vt.*"))
@@ -199,15 +203,20 @@ def test_loading_bundled_weights_imports_no_jax(run, tmp_path):
 def test_the_export_script_writes_the_pair(run, tmp_path):
     script = REPO / "experiments" / "zoo" / "export.py"
     proc = subprocess.run([sys.executable, str(script), str(run), "ppo", "--mode", "traj", "--out", str(tmp_path),
-                           "--steps", "40", "--val-ds", "1", "--val-sr", "2", "--val-rc", "3"],
+                           "--steps", "40", "--val-ds", "1", "--val-sr", "2", "--val-rc", "3",
+                           "--variant", "ppo_x=4,5,6"],
                           capture_output=True, text=True, timeout=300, cwd=REPO)
     assert proc.returncode == 0, proc.stderr[-2000:]
     info = json.loads((tmp_path / "ppo.json").read_text())
     assert info["val"] == {"driving_score": 1.0, "success_rate": 2.0, "route_completion": 3.0}
     assert info["training"]["steps"] == 40 and info["measured_with"] == "drivee2e bench --policy ppo --split val"
+    assert info["variants"] == {"ppo_x": {"driving_score": 4.0, "success_rate": 5.0, "route_completion": 6.0}}
     bad = subprocess.run([sys.executable, str(script), str(run), "ppo", "--mode", "traj", "--out", str(tmp_path),
                           "--val-ds", "1"], capture_output=True, text=True, timeout=300, cwd=REPO)
     assert bad.returncode == 2 and bad.stderr.strip().endswith("go together (all three or none)")
+    bad = subprocess.run([sys.executable, str(script), str(run), "ppo", "--mode", "traj", "--out", str(tmp_path),
+                          "--variant", "ppo_x=4,5"], capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert bad.returncode == 2 and "expected NAME=DS,SR,RC" in bad.stderr and bad.stderr.count("\n") == 1
 
 
 def test_a_results_folder_fingerprints_the_bundled_weights(run, weights):

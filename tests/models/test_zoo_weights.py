@@ -29,6 +29,18 @@ def test_every_shipped_pair_is_complete():
         assert (SHIPPED / f"{name}.npz").is_file(), name
         assert info["name"] == name and info["format"] == 1
         assert info["val"] is not None and info["training"]["command"], f"{name}: no val scores or training command"
+        for variant, val in (info.get("variants") or {}).items():
+            assert val is not None and variant.startswith(name), (name, variant)
+
+
+def _expected() -> dict:
+    """{zoo name: its json's val}: every shipped pair and the variants that
+    drive the same weights in another mode (tcp_traj, tcp_ctrl on tcp)."""
+    out = {}
+    for name, info in INFOS.items():
+        out[name] = info["val"]
+        out.update(info.get("variants") or {})
+    return out
 
 
 @pytest.mark.slow
@@ -37,13 +49,14 @@ def test_shipped_weights_reproduce_their_val_scores(tmp_path, monkeypatch):
         pytest.fail(f"no bundled weights in {SHIPPED}")
     monkeypatch.delenv(ZOO_WEIGHTS_ENV, raising=False)
     monkeypatch.delenv("DRIVEE2E_AD_MLP_CHECKPOINT", raising=False)
-    names = sorted(INFOS)
+    expected = _expected()
+    names = sorted(expected)
     cfg = BenchConfig(split="val", policies=tuple(str(resolve_policy_path(n)) for n in names), out=tmp_path / "b",
                       progress=False)
     run_bench(cfg, print_fn=lambda _line: None)
     for name in names:
         rows = json.loads((tmp_path / "b" / "policies" / f"{name}.json").read_text())["rows"]
-        got, want = summary_of(rows), INFOS[name]["val"]
+        got, want = summary_of(rows), expected[name]
         assert len(rows) == 200, name
         assert got["driving_score"] == pytest.approx(want["driving_score"], abs=DS_TOL), name
         assert got["success_rate"] == pytest.approx(want["success_rate"], abs=SR_TOL), name
