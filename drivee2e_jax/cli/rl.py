@@ -23,7 +23,7 @@ Python per simulated step. Reward: metres of route progress minus the
 Leaderboard 2.0 penalties scaled by the route length (--reward overrides the
 RewardConfig fields: progress, outside_lanes, penalty_scale_m,
 collision_pedestrian, collision_vehicle, collision_layout, red_light, failure,
-invalid_action, comfort; docs/training.md). Without --init the model
+invalid_action, comfort, at_fault_only; docs/training.md). Without --init the model
 (--model) starts from a random init; with --init it starts from an imitation
 run (drivee2e train or finetune) and --critic-warmup updates first train only
 the value network. Writes RUN/config.json, RUN/log.jsonl (one line per
@@ -43,11 +43,12 @@ def add_parser(subparsers) -> None:
     p.add_argument("--out", type=Path, required=True, help="run folder")
     p.add_argument("--init", default=None, help="imitation run folder or checkpoint to start from (default: random init)")
     p.add_argument("--model", default="vector_transformer",
-                   help="model trained from scratch (ignored with --init): vector_transformer or ad_mlp "
-                   "(default: vector_transformer)")
+                   help="model trained from scratch (ignored with --init): vector_transformer, vector_mlp (the "
+                   "fast one: an MLP over the ego's past and the scene vector) or ad_mlp (default: vector_transformer)")
     p.add_argument("--model-config", default="",
                    help="the model's make_model arguments as k=v,... from scratch: vector_transformer dim, heads, "
-                   "layers; ad_mlp hidden=128x128 (default: the model's defaults)")
+                   "layers; vector_mlp / ad_mlp hidden=256x256, init_speed=M/S (the initial straight-ahead plan) "
+                   "(default: the model's defaults)")
     p.add_argument("--suite", default="twin15", help="suite name or folder (default: twin15)")
     p.add_argument("--split", default="train", help="split the episodes are drawn from (default: train)")
     p.add_argument("--limit", type=int, default=None, help="use only the first N scenarios of the split")
@@ -114,9 +115,9 @@ def run(args) -> int:
     from drivee2e_jax.progress import progress_bars
     from drivee2e_jax.train.ppo import PPOConfig, train
 
-    reward_fields = {f.name: (bool if f.name == "outside_lanes" else float) for f in dataclasses.fields(RewardConfig)}
+    reward_fields = {f.name: (bool if f.type in (bool, "bool") else float) for f in dataclasses.fields(RewardConfig)}
     model_fields = {"dim": int, "heads": int, "layers": int, "num_waypoints": int, "waypoint_dt": float,
-                    "hidden": _widths}
+                    "hidden": _widths, "init_speed": float}
     cfg = PPOConfig(
         suite=args.suite, split=args.split, model=args.model,
         model_config=parse_kv(args.model_config, "--model-config", model_fields),

@@ -25,7 +25,7 @@ def add_parser(subparsers) -> None:
     p = add_command(subparsers, "train", help="imitation-train a baseline (Optax + Orbax checkpoints)",
                     description="Train a registered model on recorded demonstrations: AdamW with a warmup-cosine "
                     "schedule, one checkpoint per epoch, JSON-lines log.", epilog=EPILOG)
-    p.add_argument("--model", required=True, help="model name (drivee2e_jax.models.MODELS: ad_mlp, tcp, vector_transformer)")
+    p.add_argument("--model", required=True, help="model name (drivee2e_jax.models.MODELS: ad_mlp, tcp, vector_mlp, vector_transformer)")
     p.add_argument("--model-config", default="{}", help="JSON object of model options (default: {})")
     p.add_argument("--data", type=Path, required=True, help="dataset folder (drivee2e dataset build)")
     p.add_argument("--out", type=Path, required=True, help="run folder")

@@ -94,6 +94,13 @@ class RewardConfig:
         penalty for it.
       invalid_action: penalty per step whose action was out of range or
         non-finite (clipped / replaced by a full brake by the simulator).
+      at_fault_only: count a collision with an agent only when nuPlan's
+        attribution (``infractions.at_fault``: the ego's front, a stopped
+        agent, or a side contact while in several lanes / off the drivable
+        area) puts it on the ego; contacts with the ego stopped and rear-end
+        contacts, which non-reactive replay causes whenever the ego drives
+        slower than the log, then cost nothing. Layout collisions always
+        count. False by default (the leaderboard counts every collision).
       comfort: metres taken off per step whose ego motion leaves
         Bench2Drive's comfort bounds (``metrics.comfort.B2D_BOUNDS``:
         longitudinal acceleration in (-4.05, 2.40) m/s^2, lateral
@@ -112,6 +119,7 @@ class RewardConfig:
     failure: float = 0.0
     invalid_action: float = 0.0
     comfort: float = 0.0
+    at_fault_only: bool = False
 
     def __call__(self, scenario: Scenario, prev: SimState, new: SimState, log: StepLog, config: SimConfig):
         """() float32 reward of the step ``prev`` -> ``new`` (``log`` its StepLog)."""
@@ -121,9 +129,10 @@ class RewardConfig:
             progress = progress - (new.episode.outside.wrong - prev.episode.outside.wrong)
         e = log.events
         cls = e.collision_class
+        agent_hit = e.collision & log.facts.at_fault if self.at_fault_only else e.collision
         units = (
-            self.collision_pedestrian * (e.collision & (cls == CollisionClass.PEDESTRIAN))
-            + self.collision_vehicle * (e.collision & (cls == CollisionClass.VEHICLE))
+            self.collision_pedestrian * (agent_hit & (cls == CollisionClass.PEDESTRIAN))
+            + self.collision_vehicle * (agent_hit & (cls == CollisionClass.VEHICLE))
             + self.collision_layout * (e.collision & (cls == CollisionClass.LAYOUT))
             + self.red_light * e.red_light
             + self.failure * (e.route_deviation | e.blocked | e.route_timeout)

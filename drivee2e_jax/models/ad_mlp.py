@@ -43,12 +43,15 @@ class ADMLPNet(nn.Module):
 
     hidden: tuple[int, ...]
     num_waypoints: int
+    init_step: float = 0.0   # initial bias of each forward displacement (m)
 
     @nn.compact
     def __call__(self, x):
         for width in self.hidden:
             x = nn.relu(nn.Dense(width)(x))
-        steps = nn.Dense(self.num_waypoints * 2)(x).reshape(self.num_waypoints, 2)
+        bias = jnp.tile(jnp.array([self.init_step, 0.0], jnp.float32), self.num_waypoints)
+        out = nn.Dense(self.num_waypoints * 2, bias_init=lambda key, shape, dtype=jnp.float32: bias.astype(dtype))
+        steps = out(x).reshape(self.num_waypoints, 2)
         return jnp.cumsum(steps, axis=0)
 
 
@@ -66,23 +69,34 @@ class ADMLP:
     Attributes:
       hidden: widths of the hidden layers.
       num_waypoints: K predicted points, ``waypoint_dt`` s apart.
+      init_speed: m/s; the output bias starts as a straight-ahead plan at
+        this speed (0: the usual zero bias). Only the initialisation: a
+        random network then plans roughly "drive on" instead of "stand
+        still", which is what PPO from scratch needs to find any progress
+        reward (``docs/training.md``); imitation learns the bias anyway.
     """
 
     hidden: tuple[int, ...] = (128, 128)
     num_waypoints: int = 6
     waypoint_dt: float = 0.5
+    init_speed: float = 0.0
     name = "ad_mlp"
     required_sensors: tuple[str, ...] = ()
 
     @property
     def net(self) -> ADMLPNet:
-        return ADMLPNet(hidden=tuple(self.hidden), num_waypoints=self.num_waypoints)
+        return ADMLPNet(hidden=tuple(self.hidden), num_waypoints=self.num_waypoints,
+                        init_step=self.init_speed * self.waypoint_dt)
+
+    def features(self, obs) -> jnp.ndarray:
+        """The network's input of one sample (module ``features``)."""
+        return features(obs)
 
     def init(self, key, obs):
-        return self.net.init(key, features(obs))
+        return self.net.init(key, self.features(obs))
 
     def apply(self, params, obs) -> base.ModelOutput:
-        return base.ModelOutput(waypoints=self.net.apply(params, features(obs)))
+        return base.ModelOutput(waypoints=self.net.apply(params, self.features(obs)))
 
     def loss(self, params, obs, target: base.Target):
         pred = self.apply(params, obs).waypoints
@@ -90,5 +104,6 @@ class ADMLP:
         return l1, {"l1": l1, "l2": base.waypoint_l2(pred, target)}
 
 
-def make_model(hidden=(128, 128), num_waypoints: int = 6, waypoint_dt: float = 0.5) -> ADMLP:
-    return ADMLP(hidden=tuple(int(h) for h in hidden), num_waypoints=int(num_waypoints), waypoint_dt=float(waypoint_dt))
+def make_model(hidden=(128, 128), num_waypoints: int = 6, waypoint_dt: float = 0.5, init_speed: float = 0.0) -> ADMLP:
+    return ADMLP(hidden=tuple(int(h) for h in hidden), num_waypoints=int(num_waypoints), waypoint_dt=float(waypoint_dt),
+                 init_speed=float(init_speed))

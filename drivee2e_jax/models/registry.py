@@ -15,6 +15,7 @@ from drivee2e_jax.errors import DriveE2EError
 MODELS = {
     "ad_mlp": "ad_mlp",
     "tcp": "tcp",
+    "vector_mlp": "vector_mlp",
     "vector_transformer": "vector_transformer",
 }
 

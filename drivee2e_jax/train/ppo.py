@@ -7,8 +7,8 @@ minibatch, a separate value network, an entropy bonus, several epochs of
 shuffled minibatches per rollout, global-norm gradient clipping, Adam (Optax).
 
 One ``update`` = collect ``rollout_steps`` steps of ``num_envs`` environments
-(``AutoResetWrapper``: an episode that ends starts again on a random scenario
-of the split) with ``lax.scan``, then the PPO epochs over those
+(``VmapAutoResetWrapper``: an episode that ends starts again on a random
+scenario of the split; only the environments that ended are reset) with ``lax.scan``, then the PPO epochs over those
 ``num_envs * rollout_steps`` samples: ONE jitted function, no Python per step.
 
 Policy (actor). A registered imitation model (``models.base.Model``, "traj"
@@ -59,13 +59,21 @@ import numpy as np
 import optax
 from flax import struct
 
-from drivee2e_jax.envs.functional import AutoResetWrapper, DriveEnv, EnvParams, EnvState, RewardConfig, make_params
+from drivee2e_jax.envs.functional import (
+    DriveEnv,
+    EnvParams,
+    EnvState,
+    RewardConfig,
+    VmapAutoResetWrapper,
+    make_params,
+)
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.files import atomic_write_json
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.models import base
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
+from drivee2e_jax.models.vector_mlp import scene_features
 from drivee2e_jax.progress import ProgressFn
 from drivee2e_jax.sim import Simulator
 from drivee2e_jax.train.finetune import load_init
@@ -185,30 +193,18 @@ class PPOConfig:
 # --------------------------------------------------------------------------
 
 #: Feature scales of the critic's input: metres / 20, m/s / 10.
-_POS, _SPEED = 1.0 / 20.0, 1.0 / 10.0
-
-
 def features(obs: Observation, extra: jnp.ndarray) -> jnp.ndarray:
     """(F,) float32 critic input of ONE observation.
 
-    Ego [speed, accel, yaw rate, steer]; the route points ahead (P x 2, 0
-    where invalid); the nearest agents (K x 8, 0 where invalid); the route
-    command and next signal state as one-hots; the distance to that stop line
-    (capped at 100 m); the speed limit; ``extra`` = (2,) [fraction of the
-    episode's steps still to go (1 at reset, 0 at the last step), route
-    metres still to drive / 100] (``PPO._extra``): what the return depends on
-    most and the observation does not hold. The critic only trains the actor;
-    the policy never reads these.
+    ``models.vector_mlp.scene_features(obs)`` (ego state, the route points
+    ahead, the nearest agents, command and next-signal one-hots, the distance
+    to that stop line, the speed limit) followed by ``extra`` = (2,)
+    [fraction of the episode's steps still to go (1 at reset, 0 at the last
+    step), route metres still to drive / 100] (``PPO._extra``): what the
+    return depends on most and the observation does not hold. The critic
+    only trains the actor; the policy never reads ``extra``.
     """
-    ego = obs.ego * jnp.array([_SPEED, 0.2, 1.0, 1.0], jnp.float32)
-    route = jnp.where(obs.route_valid[:, None], obs.route * _POS, 0.0).reshape(-1)
-    scale = jnp.array([_POS, _POS, 1.0, 1.0, _SPEED, _SPEED, 0.2, 0.2], jnp.float32)
-    agents = jnp.where(obs.agents_valid[:, None], obs.agents * scale, 0.0).reshape(-1)
-    command = jax.nn.one_hot(obs.command, 8, dtype=jnp.float32)
-    signal = jax.nn.one_hot(obs.signal_state, 8, dtype=jnp.float32)
-    dist = jnp.minimum(obs.signal_distance, 100.0)[None] / 100.0
-    return jnp.concatenate([ego, route, agents, command, signal, dist, obs.speed_limit[None] * _SPEED,
-                            jnp.asarray(extra, jnp.float32).reshape(-1)]).astype(jnp.float32)
+    return jnp.concatenate([scene_features(obs), jnp.asarray(extra, jnp.float32).reshape(-1)]).astype(jnp.float32)
 
 
 class Critic(nn.Module):
@@ -297,7 +293,7 @@ class PPO:
             raise DriveE2EError(f"ppo: model {model.name!r} needs sensors {list(model.required_sensors)}; "
                                 "PPO trains vector-observation models (vector_transformer, ad_mlp)")
         self.model, self.env_params, self.cfg = model, env_params, cfg
-        self.env = AutoResetWrapper(DriveEnv())
+        self.env = VmapAutoResetWrapper(DriveEnv())
         self.critic = Critic(tuple(cfg.critic_hidden))
         # Actor (with its log-std) and critic each get their own clip and step
         # size: the value loss (in squared metres) would otherwise dominate a
@@ -332,8 +328,7 @@ class PPO:
         ``actor_params`` (None: the model's random init)."""
         cfg = self.cfg
         k_env, k_actor, k_critic, key = jax.random.split(key, 4)
-        obs, env_state = jax.vmap(self.env.reset, in_axes=(0, None))(
-            jax.random.split(k_env, cfg.num_envs), self.env_params)
+        obs, env_state = self.env.reset(jax.random.split(k_env, cfg.num_envs), self.env_params)
         history = jax.vmap(base.empty_history)(obs)
         obs0 = jax.tree_util.tree_map(lambda a: a[0], obs)
         if actor_params is None:
@@ -363,7 +358,7 @@ class PPO:
             key, k_act, k_env = jax.random.split(key, 3)
             hobs, hist, action, logp, value, extra = jax.vmap(self._act_one, in_axes=(None, 0, 0, 0, 0))(
                 params, obs, history, env_state, jax.random.split(k_act, cfg.num_envs))
-            obs2, env_state2, reward, done, info = jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(
+            obs2, env_state2, reward, done, info = self.env.step(
                 jax.random.split(k_env, cfg.num_envs), env_state, Waypoints(xy=action), self.env_params)
             fresh = jax.vmap(base.empty_history)(obs2)
             hist2 = jax.tree_util.tree_map(

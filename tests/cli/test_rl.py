@@ -14,7 +14,7 @@ from drivee2e_jax.cli.rl import parse_kv
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["--reward", "comfrt=1"], "--reward: bad item 'comfrt=1' (expected k=v with k in collision_layout"),
+    (["--reward", "comfrt=1"], "--reward: bad item 'comfrt=1' (expected k=v with k in at_fault_only, collision_layout"),
     (["--reward", "comfort=lots"], "--reward: comfort='lots' is not a float"),
     (["--reward", "outside_lanes=maybe"], "--reward: outside_lanes='maybe' is not a bool"),
     (["--model-config", "hidden=ax2", "--model", "ad_mlp"], "--model-config: hidden='ax2' is not a widths"),

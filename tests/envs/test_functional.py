@@ -230,3 +230,27 @@ def test_vmap_auto_reset_equals_the_vmapped_wrapper(params, max_resets):
 def test_vmap_auto_reset_rejects_negative_max_resets():
     with pytest.raises(ValueError, match="max_resets"):
         VmapAutoResetWrapper(max_resets=-1)
+
+
+def test_at_fault_only_drops_the_penalty_of_contacts_that_are_not_the_egos_fault(params):
+    from drivee2e_jax.sim import Simulator
+    from drivee2e_jax.types import CollisionClass
+
+    env = DriveEnv()
+    _, state = env.reset(jax.random.PRNGKey(0), params, 0)
+    scenario = env.scenario(state, params)
+    sim = Simulator(params.config)
+    new, _, log = sim.step(scenario, state.sim, Controls(throttle=0.5, brake=0.0, steer=0.0))
+    hit = log.replace(events=log.events.replace(collision=jnp.bool_(True),
+                                                collision_class=jnp.int32(CollisionClass.VEHICLE)))
+    penalty = float(scenario.route.length) * RewardConfig().collision_vehicle
+    for at_fault in (False, True):
+        step = hit.replace(facts=hit.facts.replace(at_fault=jnp.bool_(at_fault)))
+        clean = float(RewardConfig()(scenario, state.sim, new, log, params.config))
+        every = float(RewardConfig()(scenario, state.sim, new, step, params.config))
+        only = float(RewardConfig(at_fault_only=True)(scenario, state.sim, new, step, params.config))
+        assert every == pytest.approx(clean - penalty, rel=1e-5)
+        assert only == pytest.approx(every if at_fault else clean, rel=1e-5)
+    layout = hit.replace(events=hit.events.replace(collision_class=jnp.int32(CollisionClass.LAYOUT)))
+    assert float(RewardConfig(at_fault_only=True)(scenario, state.sim, new, layout, params.config)) == pytest.approx(
+        clean - float(scenario.route.length) * RewardConfig().collision_layout, rel=1e-5)
