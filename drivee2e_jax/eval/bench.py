@@ -24,7 +24,7 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval import distributed
 from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.eval.leaderboard import write_leaderboard_results
-from drivee2e_jax.eval.openloop import evaluate_openloop
+from drivee2e_jax.eval.openloop import ShortHorizonError, evaluate_openloop
 from drivee2e_jax.eval.report import write_report
 from drivee2e_jax.eval.results import (
     RunDir,
@@ -415,7 +415,8 @@ def _named(pol, name: str):
 
 
 def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, print_fn, maps_fn) -> None:
-    """Add the open-loop columns to ``rows`` (null for a controls policy)."""
+    """Add the open-loop columns to ``rows`` (null for a controls policy and
+    for waypoints shorter than the open-loop horizon)."""
 
     if pol.action_type != "waypoints":
         print_fn(f"[{pol.name}] open-loop metrics need future waypoints; this policy outputs controls (columns left empty)")
@@ -425,7 +426,13 @@ def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, pri
 
     t0 = time.perf_counter()
     maps = maps_fn() if "bev" in getattr(pol, "required_sensors", ()) else None
-    ol = evaluate_openloop(pol, packed, config=sim_cfg, seed=cfg.seed, limit=cfg.limit, maps=maps)
+    try:
+        ol = evaluate_openloop(pol, packed, config=sim_cfg, seed=cfg.seed, limit=cfg.limit, maps=maps)
+    except ShortHorizonError as e:
+        print_fn(f"[{pol.name}] no open-loop metrics: {e} (columns left empty)")
+        for r in rows:
+            r.update({c: None for c in OPEN_LOOP_COLUMNS})
+        return
     for r in rows:
         got = ol[r["scenario_id"]]
         r.update({c: (got[c] if finite(got[c]) else None) for c in OPEN_LOOP_COLUMNS})

@@ -55,6 +55,12 @@ from drivee2e_jax.types import Controls, Waypoints
 SECONDS = (1, 2, 3)
 
 
+class ShortHorizonError(DriveE2EError):
+    """The policy's waypoints end before the open-loop horizon (e.g. a PPO
+    actor with two waypoints): open-loop L2 is undefined for it. ``bench
+    --open-loop`` and ``drivee2e trend`` leave its open-loop columns empty."""
+
+
 @struct.dataclass
 class OpenLoopFacts:
     """One policy query (one scenario); the driver stacks them (B, N, ...).
@@ -281,7 +287,7 @@ def collect_openloop(
     policy_dt = float(getattr(policy, "waypoint_dt", waypoint_dt))
     k = int(out.xy.shape[0])
     if not policy_dt > 0 or k * policy_dt < horizon * waypoint_dt - 1e-6:
-        raise DriveE2EError(
+        raise ShortHorizonError(
             f"policy waypoints cover {k} x {policy_dt} s, open-loop evaluation needs {horizon} x {waypoint_dt} s"
         )
 

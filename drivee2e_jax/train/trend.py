@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import evaluate
-from drivee2e_jax.eval.openloop import evaluate_openloop
+from drivee2e_jax.eval.openloop import ShortHorizonError, evaluate_openloop
 from drivee2e_jax.eval.results import rows_to_csv
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, summary_of
 from drivee2e_jax.files import atomic_write, atomic_write_json, atomic_write_text
@@ -49,10 +49,15 @@ COLUMNS = (
 
 
 def evaluate_checkpoint(policy, params, packed, maps, *, limit: int | None, seed: int) -> dict:
-    """Open- and closed-loop metrics of ``policy`` with ``params`` on ``packed``."""
+    """Open- and closed-loop metrics of ``policy`` with ``params`` on ``packed``
+    (the open-loop ones None when the policy's waypoints end before the
+    open-loop horizon, e.g. a two-waypoint PPO actor)."""
 
     res = evaluate(policy, packed, None, params=params, seed=seed, limit=limit, maps=maps)
-    ol = evaluate_openloop(policy, packed, params=params, seed=seed, limit=limit, maps=maps)
+    try:
+        ol = evaluate_openloop(policy, packed, params=params, seed=seed, limit=limit, maps=maps)
+    except ShortHorizonError:
+        ol = {r["scenario_id"]: dict.fromkeys(OPEN_LOOP_COLUMNS) for r in res.rows}
     rows = [{**r, **{c: ol[r["scenario_id"]][c] for c in OPEN_LOOP_COLUMNS}} for r in res.rows]
     s = summary_of(rows)
     return {

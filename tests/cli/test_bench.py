@@ -264,6 +264,19 @@ def test_open_loop_columns_fine_grained_metrics_and_report(suite_dir, tmp_path, 
     assert "constant_velocity" in report and (out / "plots" / "sr_by_behavior.png").stat().st_size > 1000
 
 
+def test_open_loop_leaves_waypoints_shorter_than_its_horizon_empty(suite_dir, tmp_path, capsys, monkeypatch):
+    """A two-waypoint policy (1 s, e.g. a PPO actor) is scored closed-loop; its
+    open-loop columns stay empty instead of failing the run."""
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "short"
+    assert main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress", "--open-loop",
+                 "--policy", "vector_mlp:num_waypoints=2"]) == 0
+    printed = capsys.readouterr().out
+    assert "no open-loop metrics: policy waypoints cover 2 x 0.5 s" in printed
+    rows = list(csv.DictReader((out / "scenarios.csv").open()))
+    assert rows and all(r["l2_1s_stp3"] == "" and r["driving_score"] != "" for r in rows)
+
+
 def test_policy_spec_with_make_policy_arguments_and_a_result_name(tmp_path):
     from drivee2e_jax.errors import DriveE2EError
     from drivee2e_jax.policy import load_policy, parse_policy_spec

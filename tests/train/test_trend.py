@@ -22,3 +22,15 @@ def test_trend_writes_csv_and_plot(tiny_run, tmp_path):
     # Resumable: a rerun reuses the rows.
     again = run_trend(tiny_run, tmp_path, suite=str(TINY), split="train", limit=1, print_fn=msgs.append)
     assert again == rows and sum("reused" in m for m in msgs) == 2
+
+
+def test_a_policy_shorter_than_the_open_loop_horizon_gets_empty_open_loop_columns():
+    from drivee2e_jax.models import base
+    from drivee2e_jax.scenario import load_suite
+    from drivee2e_jax.train.trend import evaluate_checkpoint
+
+    policy = base.policy_from_checkpoint("vector_mlp", None, "traj", num_waypoints=2)   # 1 s: a PPO actor's
+    packed = load_suite(TINY).pack("train")
+    row = evaluate_checkpoint(policy, None, packed, None, limit=1, seed=0)
+    assert row["l2_1s"] is None and row["openloop_samples"] is None
+    assert 0.0 <= row["driving_score"] <= 100.0 and row["num_scenarios"] == 1
