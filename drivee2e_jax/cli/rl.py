@@ -12,6 +12,8 @@ examples:
   drivee2e rl --init runs/ad_mlp --out runs/ppo_ad_mlp --critic-warmup 10 --lr 1e-5 --critic-lr 3e-4
   drivee2e rl --init runs/ad_mlp --out runs/ppo_ad_mlp --critic-warmup 10 --lr 1e-5 --critic-lr 3e-4 --resume
   drivee2e rl --out runs/ppo_mlp --model ad_mlp --model-config hidden=64x64 --reward comfort=0.1,failure=0.2 --seed 1
+  drivee2e rl --out runs/ppo_scratch --model vector_mlp --model-config init_speed=5,num_waypoints=2 --envs 256 --time-limit 60
+  drivee2e bench --split val --policy vector_mlp:checkpoint=runs/ppo_scratch,name=ppo_scratch --limit 5
   drivee2e bench --split val --policy ad_mlp:checkpoint=runs/ppo_ad_mlp,name=ad_mlp_ppo --limit 5
   drivee2e trend runs/ppo_ad_mlp --split val --limit 5 --out results/trend-ppo
 
