@@ -52,6 +52,13 @@ RUNS = {
     # discounted to 0.13, far more than the red light's penalty costs (ppo_ft lost its STP stops).
     "ppo_ft_g999": (True, ["--env-steps", "3000000", "--critic-warmup", "10", "--lr", "1e-5", "--critic-lr", "3e-4",
                            "--epochs", "2", "--init-log-std", "-1.2", "--ckpt-every", "50", "--gamma", "0.999"], 25.0),
+    # From scratch with the MLP actor (models/vector_mlp.py): ~10x the transformer's env steps per second
+    # (VmapAutoResetWrapper, a cheap learner); two waypoints (only wp0 / wp1 set the controller's speed, so
+    # the other four only add noise to the gradient) and an initial straight-ahead plan at 5 m/s.
+    "ppo_scratch_mlp": (False, ["--model", "vector_mlp", "--model-config", "init_speed=5,num_waypoints=2",
+                                "--envs", "256", "--rollout-steps", "32", "--epochs", "4", "--minibatches", "4",
+                                "--lr", "3e-4", "--init-log-std", "-0.5", "--env-steps", "100000000",
+                                "--ckpt-every", "100"], 60.0),
 }
 SMOKE = ["--envs", "8", "--rollout-steps", "8", "--minibatches", "2", "--ckpt-every", "2", "--limit", "8",
          "--env-steps", "256"]
@@ -131,12 +138,17 @@ def trend(name: str, args, log) -> list[dict]:
     return sorted(rows, key=lambda r: r["epoch"])
 
 
+def run_model(run_dir: Path) -> str:
+    """The model a PPO run trains (its ``config.json``): the zoo file that loads it."""
+    return json.loads((run_dir / "config.json").read_text())["model"]
+
+
 def bench(args, names: list[str], log) -> Path:
     bdir = args.out / "bench-val"
     cmd = ["drivee2e", "bench", "--split", "val", "--open-loop", "--no-progress", "--out", str(bdir),
            "--policy", f"vector_transformer:checkpoint={args.init},name=vector_transformer"]
     for n in names:
-        cmd += ["--policy", f"vector_transformer:checkpoint={args.runs / n},name={n}"]
+        cmd += ["--policy", f"{run_model(args.runs / n)}:checkpoint={args.runs / n},name={n}"]
     if args.smoke:
         cmd += ["--limit", "4"]
     log(f"[eval] {' '.join(cmd)}")
@@ -177,9 +189,11 @@ def plot_curves(args, names: list[str], trends: dict, path: Path) -> None:
             axes[0, 2].plot([(r.get("env_steps") or 0) / 1e6 for r in t], [r["driving_score"] for r in t], "o-", label=n)
             per_update = {r["update"]: m for r, m in zip(rows, minutes, strict=True)}
             axes[1, 2].plot([per_update.get(r["epoch"], 0.0) for r in t], [r["driving_score"] for r in t], "o-", label=n)
-    for row, xl in ((0, "env steps (millions)"), (1, "training minutes")):
+    for row, xl in ((0, "env steps (millions, log scale)"), (1, "training minutes")):
         for col, yl in ((0, "train episodes: DS (rolling mean)"), (1, "train episodes: return, m"), (2, "val DS (checkpoints)")):
             ax = axes[row, col]
+            if row == 0:  # the runs span 0.3 M to tens of millions of env steps
+                ax.set_xscale("log")
             ax.set_xlabel(xl)
             ax.set_ylabel(yl)
             ax.grid(alpha=0.3)
@@ -228,7 +242,8 @@ def main(argv=None) -> int:
         trends = {n: trend(n, args, log) for n in names}
         plot_curves(args, names, trends, args.out / "curves.png")
         bdir = bench(args, names, log)
-        t4, beh = baselines.build_tables(bdir, [("vector_transformer", "vector_transformer")] + [(n, "vector_transformer") for n in names], {})
+        t4, beh = baselines.build_tables(
+            bdir, [("vector_transformer", "vector_transformer")] + [(n, run_model(args.runs / n)) for n in names], {})
         baselines.write_tables(args.out, t4, beh)
         atomic_write_json(args.out / "provenance.json", {"runs": training, "init": str(args.init),
                                                         "trend_last": {n: t[-1] if t else None for n, t in trends.items()}})
