@@ -170,7 +170,7 @@ def test_without_bundled_weights_each_zoo_file_keeps_its_old_behaviour(weights, 
     assert load_policy(ZOO / "vector_transformer.py", **CONFIG).params is None  # random init (smoke tests)
     with pytest.raises(DriveE2EError, match="checkpoint=.*DRIVEE2E_AD_MLP_CHECKPOINT.*ad_mlp.npz missing"):
         load_policy(ZOO / "ad_mlp.py")
-    for name in ("vector_transformer_ft", "ppo"):
+    for name in ("vector_transformer_ft", "ppo", "ppo_scratch"):
         with pytest.raises(DriveE2EError, match=f"{weights / name}.npz missing") as e:
             load_policy(ZOO / f"{name}.py")
         assert "\n" not in str(e.value)
@@ -186,7 +186,7 @@ def test_weights_of_another_model_are_refused(run, weights):
 
 
 def test_the_new_names_are_zoo_names():
-    assert {"vector_transformer_ft", "ppo"} <= set(reference_policy_names())
+    assert {"vector_transformer_ft", "ppo", "ppo_scratch", "vector_mlp"} <= set(reference_policy_names())
     assert not any(n.startswith("_") for n in reference_policy_names())
 
 
