@@ -388,6 +388,18 @@ class DriveEnv:
         return obs, new, reward, done, info
 
 
+def _where_done(done, new, old):
+    """``new`` where ``done`` else ``old``, leaf by leaf; ``done`` is () for one
+    environment or (B,) for a batch (broadcast over each leaf's trailing axes)."""
+    return jax.tree_util.tree_map(
+        lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - done.ndim)), a, b), new, old)
+
+
+def _next_episode(fresh: EnvState, finished: EnvState) -> EnvState:
+    """A fresh episode's state carrying the finished one's counters (episodes, total steps)."""
+    return fresh.replace(episode=finished.episode + 1, total_steps=finished.total_steps)
+
+
 class AutoResetWrapper:
     """Starts the next episode when one ends, inside the same ``step``.
 
@@ -412,10 +424,8 @@ class AutoResetWrapper:
         k_step, k_reset = jax.random.split(key)
         obs_st, state_st, reward, done, info = self.env.step(k_step, state, action, params)
         obs_re, state_re = self.env.reset(k_reset, params)
-        state_re = state_re.replace(episode=state_st.episode + 1, total_steps=state_st.total_steps)
-        pick = lambda a, b: jnp.where(done, a, b)
-        state = jax.tree_util.tree_map(pick, state_re, state_st)
-        obs = jax.tree_util.tree_map(pick, obs_re, obs_st)
+        obs = _where_done(done, obs_re, obs_st)
+        state = _where_done(done, _next_episode(state_re, state_st), state_st)
         info = {**info, "final_obs": obs_st}
         return obs, state, reward, done, info
 
@@ -464,20 +474,16 @@ class VmapAutoResetWrapper:
         obs_st, state_st, reward, done, info = jax.vmap(self.env.step, in_axes=(0, 0, 0, None))(
             k_step, state, action, params)
         n = done.shape[0]
-        carry_counters = lambda re, st: re.replace(episode=st.episode + 1, total_steps=st.total_steps)
 
         def every():
             obs_re, state_re = self.reset(k_reset, params)
-            state_re = carry_counters(state_re, state_st)
-            pick = lambda a, b: jnp.where(done.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)
-            return (jax.tree_util.tree_map(pick, obs_re, obs_st),
-                    jax.tree_util.tree_map(pick, state_re, state_st))
+            return _where_done(done, obs_re, obs_st), _where_done(done, _next_episode(state_re, state_st), state_st)
 
         def ended_only():
             idx = jnp.nonzero(done, size=self.max_resets, fill_value=n)[0]   # n = no slot
             safe = jnp.minimum(idx, n - 1)
             obs_re, state_re = self.reset(k_reset[safe], params)
-            state_re = carry_counters(state_re, _row(state_st, safe))
+            state_re = _next_episode(state_re, _row(state_st, safe))
             put = lambda a, r: a.at[idx].set(r, mode="drop")
             return (jax.tree_util.tree_map(put, obs_st, obs_re),
                     jax.tree_util.tree_map(put, state_st, state_re))

@@ -418,21 +418,19 @@ def _add_open_loop(pol, packed, rows: list[dict], sim_cfg, cfg: BenchConfig, pri
     """Add the open-loop columns to ``rows`` (null for a controls policy and
     for waypoints shorter than the open-loop horizon)."""
 
-    if pol.action_type != "waypoints":
-        print_fn(f"[{pol.name}] open-loop metrics need future waypoints; this policy outputs controls (columns left empty)")
+    def left_empty(why: str) -> None:
+        print_fn(f"[{pol.name}] {why} (columns left empty)")
         for r in rows:
-            r.update({c: None for c in OPEN_LOOP_COLUMNS})
-        return
+            r.update(dict.fromkeys(OPEN_LOOP_COLUMNS))
 
+    if pol.action_type != "waypoints":
+        return left_empty("open-loop metrics need future waypoints; this policy outputs controls")
     t0 = time.perf_counter()
     maps = maps_fn() if "bev" in getattr(pol, "required_sensors", ()) else None
     try:
         ol = evaluate_openloop(pol, packed, config=sim_cfg, seed=cfg.seed, limit=cfg.limit, maps=maps)
     except ShortHorizonError as e:
-        print_fn(f"[{pol.name}] no open-loop metrics: {e} (columns left empty)")
-        for r in rows:
-            r.update({c: None for c in OPEN_LOOP_COLUMNS})
-        return
+        return left_empty(f"no open-loop metrics: {e}")
     for r in rows:
         got = ol[r["scenario_id"]]
         r.update({c: (got[c] if finite(got[c]) else None) for c in OPEN_LOOP_COLUMNS})

@@ -8,8 +8,8 @@ shuffled minibatches per rollout, global-norm gradient clipping, Adam (Optax).
 
 One ``update`` = collect ``rollout_steps`` steps of ``num_envs`` environments
 (``VmapAutoResetWrapper``: an episode that ends starts again on a random
-scenario of the split; only the environments that ended are reset) with ``lax.scan``, then the PPO epochs over those
-``num_envs * rollout_steps`` samples: ONE jitted function, no Python per step.
+scenario of the split; only the environments that ended are reset) with
+``lax.scan``, then the PPO epochs over those ``num_envs * rollout_steps`` samples: ONE jitted function, no Python per step.
 
 Policy (actor). A registered imitation model (``models.base.Model``, "traj"
 mode: the vector transformer by default) gives the MEAN of a diagonal Gaussian
@@ -192,7 +192,6 @@ class PPOConfig:
 # Critic
 # --------------------------------------------------------------------------
 
-#: Feature scales of the critic's input: metres / 20, m/s / 10.
 def features(obs: Observation, extra: jnp.ndarray) -> jnp.ndarray:
     """(F,) float32 critic input of ONE observation.
 
@@ -291,7 +290,7 @@ class PPO:
     def __init__(self, model, env_params: EnvParams, cfg: PPOConfig):
         if getattr(model, "required_sensors", ()):
             raise DriveE2EError(f"ppo: model {model.name!r} needs sensors {list(model.required_sensors)}; "
-                                "PPO trains vector-observation models (vector_transformer, ad_mlp)")
+                                "PPO trains vector-observation models (vector_transformer, vector_mlp, ad_mlp)")
         self.model, self.env_params, self.cfg = model, env_params, cfg
         self.env = VmapAutoResetWrapper(DriveEnv())
         self.critic = Critic(tuple(cfg.critic_hidden))
