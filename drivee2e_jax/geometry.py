@@ -77,7 +77,13 @@ def cross2(a: Array, b: Array) -> Array:
 
 
 def dot(a: Array, b: Array) -> Array:
-    """Dot product over the last axis, (..., n) x (..., n) -> (...)."""
+    """Dot product over the last axis, (..., n) x (..., n) -> (...).
+
+    For 2-vectors written as ``a0 b0 + a1 b1``: XLA:CPU runs a sum over a
+    trailing axis of 2 as an element-by-element reduction, ~4x slower over
+    batched rows (docs/performance.md)."""
+    if jnp.shape(a)[-1:] == (2,) and jnp.shape(b)[-1:] == (2,):
+        return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
     return jnp.sum(a * b, axis=-1)
 
 
@@ -86,6 +92,19 @@ def safe_norm(v: Array) -> Array:
     sq = dot(v, v)
     ok = sq > _TINY
     return jnp.where(ok, jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+
+
+def row_sq_norms(v: Array) -> Array:
+    """``(...,)`` squared lengths of the 2-vectors ``v (..., 2)``, from the x and y
+    planes: over many rows XLA:CPU runs ``sum(v ** 2, axis=-1)`` as a reduction
+    over a trailing axis of 2, element by element (~4x slower)."""
+    return v[..., 0] * v[..., 0] + v[..., 1] * v[..., 1]
+
+
+def row_norms(v: Array) -> Array:
+    """``(...,)`` lengths of the 2-vectors ``v (..., 2)`` (``row_sq_norms``; no
+    gradient guard at 0: use ``safe_norm`` where one is differentiated)."""
+    return jnp.sqrt(row_sq_norms(v))
 
 
 def _unit(v: Array) -> tuple[Array, Array]:
@@ -306,13 +325,16 @@ def polygon_sat_box_penetration(sat: PolygonSAT, xy: Array, yaw: Array, lw: Arra
     over_poly = jnp.minimum(sat.hi - (c - r), (c + r) - sat.lo)
     cos, sin = jnp.cos(yaw), jnp.sin(yaw)
     px, py = sat.poly[:, 0], sat.poly[:, 1]
-    proj = jnp.stack([px * cos + py * sin, -px * sin + py * cos], axis=-1)  # (V, 2) on the box axes
-    hi = jnp.max(jnp.where(sat.valid[:, None], proj, -jnp.inf), axis=0)
-    lo = jnp.min(jnp.where(sat.valid[:, None], proj, jnp.inf), axis=0)
-    cb = jnp.stack([xy[0] * cos + xy[1] * sin, -xy[0] * sin + xy[1] * cos])
-    rb = 0.5 * lw  # a box's radius on its own axes
-    over_box = jnp.minimum(hi - (cb - rb), (cb + rb) - lo)
-    depth = jnp.minimum(jnp.min(jnp.where(sat.normal_ok, over_poly, jnp.inf)), jnp.min(over_box))
+    over_box = []
+    # The vertices on each box axis as one plane per axis (a (V, 2) stack
+    # reduced over V is an element-by-element loop on XLA:CPU).
+    for proj, cb, rb in ((px * cos + py * sin, xy[0] * cos + xy[1] * sin, 0.5 * lw[0]),
+                         (-px * sin + py * cos, -xy[0] * sin + xy[1] * cos, 0.5 * lw[1])):
+        hi = jnp.max(jnp.where(sat.valid, proj, -jnp.inf))
+        lo = jnp.min(jnp.where(sat.valid, proj, jnp.inf))
+        over_box.append(jnp.minimum(hi - (cb - rb), (cb + rb) - lo))  # rb: a box's radius on its own axis
+    depth = jnp.minimum(jnp.min(jnp.where(sat.normal_ok, over_poly, jnp.inf)),
+                        jnp.minimum(over_box[0], over_box[1]))
     return jnp.where(sat.any, depth, -jnp.inf)
 
 
@@ -415,22 +437,37 @@ def project_to_polyline(p: Array, xy: Array, valid: Array) -> Projection:
     )
 
 
-def nearest_segment(p: Array, xy: Array, valid: Array) -> tuple[Array, Array]:
+def nearest_vertex(p: Array, xy: Array, valid: Array) -> tuple[Array, Array]:
+    """(index, squared distance) of the valid vertex of ``xy (N, 2)`` nearest
+    ``p (2,)`` (the lowest index on a tie; index 0 and inf when none is valid).
+
+    The squared distance is formed from the x and y planes (``dx*dx + dy*dy``),
+    not as a sum over the trailing axis of 2: the latter is a reduction XLA:CPU
+    runs element by element, ~4x slower on the (B, lanes, points) arrays of
+    the per-step lane tests (docs/performance.md)."""
+    dx = xy[..., 0] - p[0]
+    dy = xy[..., 1] - p[1]
+    d2 = jnp.where(valid, dx * dx + dy * dy, jnp.inf)
+    j = jnp.argmin(d2)
+    return j, d2[j]
+
+
+def nearest_segment(p: Array, xy: Array, valid: Array, *, with_vertex: bool = False):
     """Fast (distance, heading) of ``p`` to a DENSELY sampled padded polyline.
 
-    Finds the nearest valid vertex, then projects onto its two adjacent
-    segments only: O(N) cheap squared distances instead of N full segment
-    projections. Equal to ``project_to_polyline``'s distance whenever the
-    true foot lies on a segment adjacent to the nearest vertex, which holds
+    Finds the nearest valid vertex (``nearest_vertex``), then projects onto its
+    two adjacent segments only: O(N) cheap squared distances instead of N full
+    segment projections. Equal to ``project_to_polyline``'s distance whenever
+    the true foot lies on a segment adjacent to the nearest vertex, which holds
     for polylines sampled much finer than their radius of curvature and the
     point's distance (lanes at <= 2 m spacing, queried within a few metres).
-    Returns (inf, 0) for a polyline without a valid point.
+    Returns (inf, 0) for a polyline without a valid point; with
+    ``with_vertex`` also the nearest vertex's index (a third output).
     """
     n = xy.shape[0]
-    d2 = jnp.sum((xy - p) ** 2, axis=-1)
-    j = jnp.argmin(jnp.where(valid, d2, jnp.inf))
+    j, d2j = nearest_vertex(p, xy, valid)
     lo = jnp.clip(j - 1, 0, n - 2)
-    best_d, best_h = jnp.inf, jnp.zeros(())
+    best_d, best_dab = jnp.inf, jnp.zeros(2, xy.dtype)
     for k in (lo, lo + 1):  # segments (k, k + 1) around the vertex
         k = jnp.minimum(k, n - 2)
         a, b = xy[k], xy[k + 1]
@@ -439,11 +476,14 @@ def nearest_segment(p: Array, xy: Array, valid: Array) -> tuple[Array, Array]:
         t = jnp.clip(dot(p - a, dab) / jnp.maximum(dot(dab, dab), _TINY), 0.0, 1.0)
         dist = jnp.where(ok, safe_norm(p - (a + t * dab)), jnp.inf)
         better = dist < best_d
-        best_h = jnp.where(better, jnp.arctan2(dab[1], dab[0]), best_h)
+        best_dab = jnp.where(better, dab, best_dab)
         best_d = jnp.where(better, dist, best_d)
+    best_h = jnp.arctan2(best_dab[1], best_dab[0])  # one arctan2, of the winning segment
     # A lone valid point (no valid segment): its own distance.
     lone = ~jnp.isfinite(best_d) & valid[j]
-    best_d = jnp.where(lone, jnp.sqrt(d2[j]), best_d)
+    best_d = jnp.where(lone, jnp.sqrt(d2j), best_d)
+    if with_vertex:
+        return best_d, best_h, j
     return best_d, best_h
 
 

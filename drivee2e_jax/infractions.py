@@ -110,7 +110,7 @@ CONTACT_CANDIDATES = 16
 
 def nearest_rows(ego: EgoState, agents: AgentStates, k: int = CONTACT_CANDIDATES):
     """(k,) rows of the valid agents nearest the ego (nearest first), and their validity."""
-    d2 = jnp.sum((agents.xy - ego.xy) ** 2, axis=-1)
+    d2 = geometry.row_sq_norms(agents.xy - ego.xy)
     k = min(k, d2.shape[0])
     neg, idx = jax.lax.top_k(-jnp.where(agents.valid, d2, jnp.inf), k)
     return idx, jnp.isfinite(neg)
@@ -202,9 +202,7 @@ def lane_footprint(ego: EgoState, ego_lw, lane_xy, lane_point_valid, lane_valid,
     corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
 
     def offsets(xy, valid):
-        d2 = jnp.sum((xy - ego.xy) ** 2, axis=-1)
-        j = jnp.argmin(jnp.where(valid, d2, jnp.inf))
-        _, heading = geometry.nearest_segment(ego.xy, xy, valid)
+        _, heading, j = geometry.nearest_segment(ego.xy, xy, valid, with_vertex=True)
         u = jnp.stack([jnp.cos(heading), jnp.sin(heading)])
         return geometry.cross2(u, corners - xy[j])  # (4,) m, left positive
 
@@ -378,10 +376,10 @@ def lane_status(ego: EgoState, lane_xy, lane_point_valid, lane_valid, lane_width
 
 def background_speed(ego: EgoState, agents: AgentStates, category):
     """Mean speed of vehicles within ``BACKGROUND_RADIUS`` (LB min-speed input)."""
-    d = jnp.linalg.norm(agents.xy - ego.xy, axis=-1)
+    d = geometry.row_norms(agents.xy - ego.xy)
     is_vehicle = (category != Category.PEDESTRIAN) & (category != Category.CYCLIST)
     sel = agents.valid & is_vehicle & (d < BACKGROUND_RADIUS)
-    speed = jnp.linalg.norm(agents.vel, axis=-1)
+    speed = geometry.row_norms(agents.vel)
     n = sel.sum()
     return jnp.where(n > 0, jnp.sum(jnp.where(sel, speed, 0.0)) / jnp.maximum(n, 1), 0.0), n > 0
 
@@ -395,7 +393,7 @@ def front_distance(ego: EgoState, ego_lw, agents: AgentStates, size):
     """
     rel = geometry.to_frame(agents.xy, ego.xy, ego.yaw)
     in_corridor = (rel[:, 0] > 0) & (jnp.abs(rel[:, 1]) < 0.5 * ego_lw[1] + 0.5 * size[:, 1] + 0.5)
-    d = jnp.where(agents.valid & in_corridor, jnp.linalg.norm(rel, axis=-1), jnp.inf)
+    d = jnp.where(agents.valid & in_corridor, geometry.row_norms(rel), jnp.inf)
     return d.min()
 
 
