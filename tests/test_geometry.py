@@ -398,6 +398,34 @@ def test_nearest_segment_matches_full_projection_on_dense_polylines():
             assert abs(math.remainder(float(h) - float(want.heading), 2 * math.pi)) < 1e-4 or float(d) < 1e-3
 
 
+def test_nearest_vertex_and_plane_forms_match_numpy():
+    """``nearest_vertex`` (lowest index on ties, invalid vertices skipped), ``row_sq_norms``,
+    ``row_norms`` and the 2-vector ``dot`` (all written from x / y planes for XLA:CPU) against
+    float64 numpy on random rows; ``nearest_segment(with_vertex=True)`` hands back that vertex."""
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(-20, 20, (64, 2)).astype(np.float32)
+    xy[10] = xy[3]  # a tie: the lower index wins
+    valid = rng.random(64) > 0.2
+    valid[3] = valid[10] = True
+    for p in (xy[3], rng.uniform(-20, 20, 2).astype(np.float32)):
+        j, d2 = geo.nearest_vertex(jnp.asarray(p), jnp.asarray(xy), jnp.asarray(valid))
+        ref = np.where(valid, ((xy.astype(np.float64) - p) ** 2).sum(-1), np.inf)
+        assert int(j) == int(np.argmin(ref))
+        np.testing.assert_allclose(float(d2), ref.min(), rtol=1e-5, atol=1e-6)
+        _, _, jv = geo.nearest_segment(jnp.asarray(p), jnp.asarray(xy), jnp.asarray(valid), with_vertex=True)
+        assert int(jv) == int(j)
+    j, d2 = geo.nearest_vertex(jnp.zeros(2), jnp.asarray(xy), jnp.zeros(64, bool))
+    assert int(j) == 0 and np.isinf(float(d2))
+    v, w = rng.normal(size=(5, 3, 2)), rng.normal(size=(5, 3, 2))
+    np.testing.assert_allclose(np.asarray(geo.row_sq_norms(jnp.asarray(v))), (v**2).sum(-1), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(geo.row_norms(jnp.asarray(v))), np.linalg.norm(v, axis=-1), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(geo.dot(jnp.asarray(v), jnp.asarray(w))), (v * w).sum(-1), rtol=1e-5,
+                               atol=1e-6)
+    u, z = rng.normal(size=(4, 3)), rng.normal(size=(4, 3))  # other lengths keep the plain sum
+    np.testing.assert_allclose(np.asarray(geo.dot(jnp.asarray(u), jnp.asarray(z))), (u * z).sum(-1), rtol=1e-5,
+                               atol=1e-6)
+
+
 # --------------------------------------------------------------------------
 # Segment vs oriented box (nuPlan's front-bumper test)
 # --------------------------------------------------------------------------
