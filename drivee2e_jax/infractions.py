@@ -110,7 +110,8 @@ CONTACT_CANDIDATES = 16
 
 def nearest_rows(ego: EgoState, agents: AgentStates, k: int = CONTACT_CANDIDATES):
     """(k,) rows of the valid agents nearest the ego (nearest first), and their validity."""
-    d2 = geometry.row_sq_norms(agents.xy - ego.xy)
+    d = agents.xy - ego.xy
+    d2 = geometry.dot(d, d)
     k = min(k, d2.shape[0])
     neg, idx = jax.lax.top_k(-jnp.where(agents.valid, d2, jnp.inf), k)
     return idx, jnp.isfinite(neg)

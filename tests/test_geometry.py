@@ -399,8 +399,8 @@ def test_nearest_segment_matches_full_projection_on_dense_polylines():
 
 
 def test_nearest_vertex_and_plane_forms_match_numpy():
-    """``nearest_vertex`` (lowest index on ties, invalid vertices skipped), ``row_sq_norms``,
-    ``row_norms`` and the 2-vector ``dot`` (all written from x / y planes for XLA:CPU) against
+    """``nearest_vertex`` (lowest index on ties, invalid vertices skipped), ``row_norms``,
+    the 2-vector ``dot`` and ``dot(v, v)`` (all written from x / y planes for XLA:CPU) against
     float64 numpy on random rows; ``nearest_segment(with_vertex=True)`` hands back that vertex."""
     rng = np.random.default_rng(7)
     xy = rng.uniform(-20, 20, (64, 2)).astype(np.float32)
@@ -417,7 +417,7 @@ def test_nearest_vertex_and_plane_forms_match_numpy():
     j, d2 = geo.nearest_vertex(jnp.zeros(2), jnp.asarray(xy), jnp.zeros(64, bool))
     assert int(j) == 0 and np.isinf(float(d2))
     v, w = rng.normal(size=(5, 3, 2)), rng.normal(size=(5, 3, 2))
-    np.testing.assert_allclose(np.asarray(geo.row_sq_norms(jnp.asarray(v))), (v**2).sum(-1), rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(geo.dot(jnp.asarray(v), jnp.asarray(v))), (v**2).sum(-1), rtol=1e-5)
     np.testing.assert_allclose(np.asarray(geo.row_norms(jnp.asarray(v))), np.linalg.norm(v, axis=-1), rtol=1e-5)
     np.testing.assert_allclose(np.asarray(geo.dot(jnp.asarray(v), jnp.asarray(w))), (v * w).sum(-1), rtol=1e-5,
                                atol=1e-6)
