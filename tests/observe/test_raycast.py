@@ -60,6 +60,9 @@ def _fan(z):
 
 
 _buffer72 = jax.jit(lambda s, o, h: raycast.polar_buffer(s, o, h, _fan(72), 85.0, raycast.BufferConfig(depth=3)))
+# The 360-ray buffer from the origin, heading 0, compiled: op by op its first
+# call took ~20-30 s of the suite.
+_buffer360 = jax.jit(lambda s: raycast.polar_buffer(s, jnp.zeros(2), jnp.zeros(()), _fan(360), 85.0))
 
 
 @settings(max_examples=20, deadline=None)
@@ -103,15 +106,15 @@ def test_close_box_spanning_many_rays_is_not_clipped():
     """A bus 1 m beside the sensor covers ~160 deg: every ray towards it hits."""
     z = 360
     sc = _one_box_scene((0.0, 2.5), 0.0, (12.0, 2.5))
-    buf = raycast.polar_buffer(jax_scene(sc), jnp.zeros(2), jnp.zeros(()), _fan(z), 85.0)
+    buf = _buffer360(jax_scene(sc))
     objs = shapes(sc)
-    want = np.array([faces(np.zeros(2), az, objs, 85.0)[0][0][0] if faces(np.zeros(2), az, objs, 85.0)[0] else np.inf
-                     for az in _fan(z)])
+    hits = [faces(np.zeros(2), az, objs, 85.0)[0] for az in _fan(z)]
+    want = np.array([h[0][0] if h else np.inf for h in hits])
     assert np.isfinite(want).sum() > 150  # the case is really wide
     np.testing.assert_allclose(np.asarray(buf.range[:, 0]), want, atol=2e-3)
     # Without wide slots the window clips it: the oracle comparison can fail.
-    clip = raycast.polar_buffer(jax_scene(sc), jnp.zeros(2), jnp.zeros(()), _fan(z), 85.0,
-                                raycast.BufferConfig(agent_tiers=((0, 10.0),)))
+    clip = jax.jit(lambda s: raycast.polar_buffer(s, jnp.zeros(2), jnp.zeros(()), _fan(z), 85.0,
+                                                  raycast.BufferConfig(agent_tiers=((0, 10.0),))))(jax_scene(sc))
     assert np.isfinite(np.asarray(clip.range[:, 0])).sum() < np.isfinite(want).sum()
 
 
@@ -119,7 +122,7 @@ def test_close_wall_spanning_many_rays_is_not_clipped():
     sc = _one_box_scene((60.0, 60.0), 0.0, (1.0, 1.0))
     sc["polys"] = [np.array([[-30, 1.5], [30, 1.5], [30, 4], [-30, 4]], np.float32)]
     sc["heights"] = np.array([8.0], np.float32)
-    buf = raycast.polar_buffer(jax_scene(sc), jnp.zeros(2), jnp.zeros(()), _fan(360), 85.0)
+    buf = _buffer360(jax_scene(sc))
     hit = np.isfinite(np.asarray(buf.range[:, 0]))
     assert hit[3:178].all() and not hit[:2].any() and not hit[179:].any()  # ends at 2.9 and 177.1 deg
     np.testing.assert_allclose(buf.range[90, 0], 1.5, atol=1e-5)
@@ -135,11 +138,15 @@ def test_range_gradient_matches_finite_differences():
         s = s.replace(agent_xy=s.agent_xy.at[0].set(xy))
         return raycast.polar_buffer(s, jnp.zeros(2), jnp.zeros(()), fan, 85.0).range[j, 0]
 
+    # Compiled once each (the ray index is traced): run op by op, the 90 rays
+    # and their gradients took ~70 s of the suite.
+    grad = jax.jit(jax.grad(first_range))
+    first_range = jax.jit(first_range)
     xy = jnp.array([12.0, 1.0])
     rays = [j for j in range(90) if np.isfinite(first_range(xy, j))]
     assert len(rays) >= 3
     for j in rays:
-        g = jax.grad(first_range)(xy, j)
+        g = grad(xy, j)
         assert np.all(np.isfinite(g))
         eps = 1e-2
         fd = [(first_range(xy + eps * e, j) - first_range(xy - eps * e, j)) / (2 * eps) for e in jnp.eye(2)]
