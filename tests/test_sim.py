@@ -184,7 +184,7 @@ def test_presets_change_what_counts(log_replay, batch):
 def test_step_is_differentiable_in_controls(batch):
     sim = Simulator(SimConfig())
     scn = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), batch.scenario)
-    state, _ = sim.reset(jax.random.PRNGKey(0), scn)
+    state, _ = jax.jit(sim.reset)(jax.random.PRNGKey(0), scn)  # op by op: ~15 s
 
     def final_x(throttle):
         s = state
@@ -218,8 +218,8 @@ def test_observe_of_a_stepped_state_equals_the_step_observation(batch):
 
     sim = Simulator(SimConfig(obs=ObsConfig(gps_noise_std=1.0, compass_noise_std=0.1)))
     scn = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), batch.scenario)
-    state, obs0 = sim.reset(jax.random.PRNGKey(3), scn)
-    chex.assert_trees_all_equal(sim.observe(scn, state), obs0)
+    state, obs0 = jax.jit(sim.reset)(jax.random.PRNGKey(3), scn)  # compiled: op by op ~30 s
+    chex.assert_trees_all_equal(jax.jit(sim.observe)(scn, state), obs0)
     step = jax.jit(sim.step)
     seen = set()
     for _ in range(3):
@@ -227,5 +227,6 @@ def test_observe_of_a_stepped_state_equals_the_step_observation(batch):
         chex.assert_trees_all_close(jax.jit(sim.observe)(scn, state), obs, rtol=1e-6)
         seen.add(float(obs.gps[0] - state.ego.xy[0]))
     assert len(seen) == 3  # fresh noise every step
-    _, none, _ = sim.step(scn, state, Controls(jnp.asarray(0.5), jnp.zeros(()), jnp.asarray(0.0)), observe=False)
+    _, none, _ = jax.jit(sim.step, static_argnames="observe")(
+        scn, state, Controls(jnp.asarray(0.5), jnp.zeros(()), jnp.asarray(0.0)), observe=False)
     assert none is None

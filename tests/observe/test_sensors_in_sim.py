@@ -82,4 +82,4 @@ def test_bev_without_assets_is_a_clear_error(tiny_suite):
     sim = Simulator(SimConfig(sensors=dataclasses.replace(SMALL, lidar=None)))
     first = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), packed.scenario)
     with pytest.raises(ValueError, match="no SensorAssets"):
-        sim.reset(jax.random.PRNGKey(0), first)
+        jax.jit(sim.reset)(jax.random.PRNGKey(0), first)  # traced only: op by op the reset ran ~15 s first
