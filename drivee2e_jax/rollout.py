@@ -22,6 +22,7 @@ rendering and the policy entirely (``lax.cond`` on the scan index).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -83,14 +84,36 @@ def _all_finite(action) -> jnp.ndarray:
     return jnp.all(jnp.stack(leaves)) if leaves else jnp.ones((), bool)
 
 
+@struct.dataclass
+class Start:
+    """A reset batch before the policy's parameters are needed (``Rollout.reset``).
+
+    ``sim``: SimState (B, ...); ``policy_state``: (B, ...) each scenario's
+    ``policy.initial_state(obs)``; ``key``: (B, 2) the carry's PRNG keys;
+    ``first_obs``: row 0's initial Observation, no batch axis: what
+    ``evaluate`` initialises and checks the policy's parameters on.
+    """
+
+    sim: SimState
+    policy_state: Any
+    key: jnp.ndarray
+    first_obs: Any
+
+
 class Rollout:
     """Runs a policy on a batch of scenarios.
 
     Usage::
 
         ro = Rollout(sim, policy, params)
-        carry = ro.init(batch, key)               # vmapped reset
-        carry, logs = ro.advance(carry, batch)    # `chunk` steps, jitted
+        carry = ro.init(batch, keys)              # vmapped reset, keys (B, 2)
+        carry, logs = ro.advance(batch, carry)    # `chunk` steps, jitted
+
+    ``init`` is ``start(reset(batch, keys), batch)``: ``reset`` (the
+    simulator's reset and the policy's initial state, one compiled program)
+    does not read the params, so a caller without params yet (``evaluate``)
+    takes them from its ``first_obs``, sets ``ro.params`` and calls ``start``
+    (a small program: the carry's neutral first action, shaped by ``act``).
     """
 
     def __init__(self, sim: Simulator, policy, params=None, *, timing: ControlTiming | None = None, chunk: int = 50,
@@ -104,19 +127,48 @@ class Rollout:
         # Sensor assets: the map raster table is shared (broadcast), the map
         # index is per scenario; the policy params are broadcast.
         ax = sensors.assets_axes(assets)
-        self.init = jax.jit(jax.vmap(self._init_one, in_axes=(0, 0, ax, None)))
-        self.init = _laid_out_like_batch(_with_params(self.init, lambda: (self.assets, self.params)))
+        self.reset = _with_params(jax.jit(functools.partial(self._reset_batch, axes=ax)), lambda: (self.assets,))
+        self._start = jax.jit(jax.vmap(self._start_one, in_axes=(0, 0, 0, None, None)))
         self.advance = jax.jit(jax.vmap(self._advance_one, in_axes=(0, 0, ax, None)))
         self.advance = _with_params(self.advance, lambda: (self.assets, self.params))
 
+    def init(self, batch: Scenario, keys) -> Carry:
+        """The carry of every scenario at t = 0: ``start(reset(batch, keys), batch)``."""
+        return self.start(self.reset(batch, keys), batch)
+
+    def start(self, started: Start, batch: Scenario | None = None) -> Carry:
+        """The rollout's carry from ``reset``'s output, with ``self.params``;
+        placed like ``batch`` when given (over a sharded batch XLA replicates
+        the carry's constant leaves, and ``advance`` would then compile a
+        second time for the carry it returns itself)."""
+        carry = self._start(started.sim, started.policy_state, started.key, started.first_obs, self.params)
+        placed = None if batch is None else batch.ego_index
+        if isinstance(placed, jax.Array) and not isinstance(placed, jax.core.Tracer):  # numpy or traced: as is
+            carry = jax.device_put(carry, placed.sharding)
+        return carry
+
+    def lower_init(self, batch: Scenario, keys) -> list:
+        """The two programs ``init`` runs, lowered ahead of time for compile
+        timing (``.compile()`` each): [``reset``, ``start``]."""
+        reset = self.reset.lower(batch, keys)
+        st = reset.out_info
+        return [reset, self._start.lower(st.sim, st.policy_state, st.key, st.first_obs, self.params)]
+
     # one scenario -----------------------------------------------------------
-    def _init_one(self, scenario: Scenario, key, assets, params) -> Carry:
-        k_reset, k_pol, key = jax.random.split(key, 3)
+    def _reset_batch(self, batch: Scenario, keys, assets, *, axes) -> Start:
+        sim_state, pstate, key, obs = jax.vmap(self._reset_one, in_axes=(0, 0, axes))(batch, keys, assets)
+        return Start(sim=sim_state, policy_state=pstate, key=key,
+                     first_obs=jax.tree_util.tree_map(lambda a: a[0], obs))
+
+    def _reset_one(self, scenario: Scenario, key, assets):
+        k_reset, _, key = jax.random.split(key, 3)  # the middle key was the policy's (kept: same streams)
         sim_state, obs = self.sim.reset(k_reset, scenario, assets)
-        pstate = self.policy.initial_state(obs)
+        return sim_state, self.policy.initial_state(obs), key, obs
+
+    def _start_one(self, sim_state: SimState, pstate, key, first_obs, params) -> Carry:
         # Only the action's structure is needed: never run the policy here (a
         # host policy would be called for a step that does not exist).
-        action, _ = jax.eval_shape(self.policy.act, params, obs, pstate, k_pol)
+        action, _ = jax.eval_shape(self.policy.act, params, first_obs, pstate, key)
         neutral = _brake_like(action)
         queue = jax.tree_util.tree_map(lambda a: jnp.stack([a] * self.timing.latency), neutral) if self.timing.latency else None
         return Carry(sim=sim_state, policy_state=pstate, held=neutral, queue=queue, key=key,
@@ -240,22 +292,6 @@ def _with_params(fn, get_extra):
         return fn(*args, *get_extra())
 
     call.lower = lambda *args: fn.lower(*args, *get_extra())  # for compile timing
-    return call
-
-
-def _laid_out_like_batch(init):
-    """``init`` with its carry placed like the batch: over a sharded batch XLA
-    replicates the initial carry's constant leaves, and ``advance`` would then
-    compile a second time for the carry it returns itself."""
-
-    def call(batch, keys):
-        carry = init(batch, keys)
-        placed = batch.ego_index
-        if isinstance(placed, jax.Array) and not isinstance(placed, jax.core.Tracer):  # numpy or traced: as is
-            carry = jax.device_put(carry, placed.sharding)
-        return carry
-
-    call.lower = init.lower
     return call
 
 

@@ -60,7 +60,7 @@ from drivee2e_jax.scenario.suite import EXAMPLE_SUITES
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Controls, Waypoints
 
-__all__ = ["Problem", "Report", "check_policy", "check_policy_file", "check_traceable", "checked_params",
+__all__ = ["Problem", "Report", "check_policy", "check_policy_file", "check_initial_state", "check_traceable", "checked_params",
            "DEFAULT_SUITE", "TINY_SUITE"]
 
 #: ``suite="tiny"``: the repository's four-scenario example suite.
@@ -213,12 +213,8 @@ def check_traceable(policy: Any, obs, params, key, *, source: str | None = None,
         report.add("init", f"init(key, obs) returned params with {_describe(bad[1])} at {bad[0] or 'its root'}, "
                            f"expected a pytree of arrays (the rollout passes params through jax.jit)")
         return report
-    try:
-        state0 = _traced(policy.initial_state, obs)
-    except Exception as e:  # noqa: BLE001 - a user's policy: one line
-        report.add("initial_state", f"initial_state(obs) {_trace_failure(e, report.source)} ({where})")
-        return report
-    if not _state_leaves_ok(report, state0):
+    ok, state0 = _traced_initial_state(report, policy, obs, where)
+    if not ok:
         return report
     try:
         result = _traced(policy.act, params, obs, state0, key)
@@ -228,6 +224,26 @@ def check_traceable(policy: Any, obs, params, key, *, source: str | None = None,
     _check_result(report, result, state0, policy.action_type, getattr(policy, "num_waypoints", None), where)
     del report[1:]
     return report
+
+
+def check_initial_state(policy: Any, obs, *, where: str = "on one observation") -> Report:
+    """Only the ``initial_state(obs)`` part of :func:`check_traceable` (no
+    params needed): ``Rollout.reset`` traces it inside the compiled reset, so
+    when that fails ``evaluate`` asks this for the one-line cause."""
+    report = Report(_source_of(policy))
+    _traced_initial_state(report, policy, obs, f"traced {where}")
+    return report
+
+
+def _traced_initial_state(report: Report, policy: Any, obs, where: str):
+    """(True, ``initial_state(obs)``'s abstract value), or (False, None) after
+    adding the problem to ``report`` (a policy without state returns None)."""
+    try:
+        state0 = _traced(policy.initial_state, obs)
+    except Exception as e:  # noqa: BLE001 - a user's policy: one line
+        report.add("initial_state", f"initial_state(obs) {_trace_failure(e, report.source)} ({where})")
+        return False, None
+    return (True, state0) if _state_leaves_ok(report, state0) else (False, None)
 
 
 def _traced(fn, *args):

@@ -96,10 +96,11 @@ def evaluate(
     Sensors: ``config.sensors`` plus every sensor the policy lists in
     ``required_sensors`` (``with_policy_sensors``).
 
-    Before anything compiles, a JAX policy is traced once on the first
-    scenario's observation (``checked_params``): a policy that raises, returns
-    the wrong action or state, or branches on a traced value is a one-line
-    DriveE2EError naming its file and line instead of a JAX traceback.
+    Before the rollout compiles, a JAX policy is traced once on the first
+    scenario's initial observation (``begin_rollout``): a policy that raises,
+    returns the wrong action or state, or branches on a traced value is a
+    one-line DriveE2EError naming its file and line instead of a JAX
+    traceback. ``compile_s`` counts the reset, that check and the first chunk.
     """
     policy = hostbridge.wrap(policy)
     packed = suite.pack(split) if hasattr(suite, "pack") else suite
@@ -123,19 +124,17 @@ def evaluate(
     batch, meta = device_batch(packed)
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(seed)
-    params = checked_params(policy, sim, batch, key, assets, params, str(meta.scenario_id[0]))
     if hostbridge.is_host(policy):  # one host call per step for the whole batch, on one device
         devices = devices or jax.local_devices()[:1]
-        hostbridge.begin(policy, meta, batch, lambda: first_observation(sim, batch, key, assets))
     b = int(batch.ego_index.shape[0])
-    total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+    total = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(batch))))
     chunk = balanced_chunk(total, chunk, (timing or ControlTiming()).control_every)
 
     t0 = time.perf_counter()
     keys = _scenario_keys(key, n_split, index) if seeds is None else _repetition_keys(seeds, n_split, index)
     run_batch, keys, run_assets = shard_rollout_inputs(batch, keys, assets, devices)
-    ro = Rollout(sim, policy, params, timing=timing, chunk=chunk, assets=run_assets)
-    carry = ro.init(run_batch, keys)
+    ro = Rollout(sim, policy, None, timing=timing, chunk=chunk, assets=run_assets)
+    carry = begin_rollout(ro, run_batch, keys, key, meta, params)
     carry, first = ro.advance(run_batch, carry)
     jax.block_until_ready(carry)
     hostbridge.raise_if_failed(policy)
@@ -261,24 +260,63 @@ def with_policy_sensors(config: SimConfig, policy) -> SimConfig:
     return dataclasses.replace(config, sensors=sensors.SensorConfig.for_policy(tuple(want), chosen))
 
 
-def checked_params(policy, sim: Simulator, batch, key, assets=None, params=None, scenario_id: str | None = None):
-    """``params`` (``policy.init`` when None) for a rollout of ``batch``, with a
-    JAX policy checked first (``testing.checked_params``: ``jax.eval_shape``
-    of ``initial_state`` and ``act`` on the first scenario's observation,
-    ``scenario_id``); one-line DriveE2EError naming the policy's file instead
-    of a JAX traceback. Host policies are checked by ``hostbridge`` as they run."""
-    if hostbridge.is_host(policy):
-        return init_params(policy, sim, batch, key, assets) if params is None else params
-    obs = jax.tree_util.tree_map(lambda a: a[0], first_observation(sim, batch, key, assets))
-    where = f"on scenario {scenario_id}'s first observation" if scenario_id else "on the first observation"
-    return testing.checked_params(policy, obs, key, params, where=where)
+def begin_rollout(ro: Rollout, batch, keys, key, meta, params=None, *, init: bool = True):
+    """Reset ``batch`` (``ro.reset``) and return the rollout's first carry.
+
+    With ``init`` (the first batch of a run) ``ro.params`` is set to
+    ``params``, or ``policy.init(key, obs)`` when None, on row 0's initial
+    observation (``Start.first_obs``, reset with row 0's own key), and a JAX
+    policy is checked on that observation first (``testing.checked_params``):
+    a policy that raises, returns the wrong action or state, or branches on a
+    traced value is a one-line DriveE2EError naming its file and line, not a
+    JAX traceback. A host policy is started (``hostbridge.begin``) on the
+    batch's rows. One compiled reset serves both the parameters and the
+    rollout (before, a second reset of one scenario was compiled for them).
+
+    ``batch``: the (possibly sharded) device ``Scenario`` batch, (B, ...);
+    ``keys``: (B, 2) per-scenario keys; ``key``: the run's key (``init``'s);
+    ``meta``: the batch's ``SuiteMeta`` (at least its real rows).
+    """
+    policy = ro.policy
+    sid = str(meta.scenario_id[0])
+    try:
+        started = ro.reset(batch, keys)
+    except DriveE2EError:
+        raise
+    except Exception as e:  # noqa: BLE001 - a policy's initial_state fails inside the compiled reset
+        _raise_initial_state_problem(ro, batch, key, sid, e)
+        raise
+    if init:
+        if hostbridge.is_host(policy):
+            ro.params = policy.init(key, started.first_obs) if params is None else params
+        else:
+            ro.params = testing.checked_params(policy, started.first_obs, key, params,
+                                               where=f"on scenario {sid}'s first observation")
+    hostbridge.begin(policy, meta, batch, lambda: jax.tree_util.tree_map(lambda a: a[None], started.first_obs))
+    return ro.start(started, batch)
+
+
+def _raise_initial_state_problem(ro: Rollout, batch, key, sid: str, error: Exception) -> None:
+    """The one-line DriveE2EError for a policy whose ``initial_state`` broke
+    ``ro.reset``'s tracing (found again, abstractly, on the first scenario);
+    returns when the policy is not the cause."""
+    first = jax.tree_util.tree_map(lambda a: a[0], batch)
+    assets = ro.assets if ro.assets is None else ro.assets.replace(map_index=ro.assets.map_index[0])
+    try:
+        _, obs = jax.eval_shape(ro.sim.reset, key, first, assets)
+    except Exception:  # noqa: BLE001 - the simulator itself fails: the original error stands
+        return
+    report = testing.check_initial_state(ro.policy, obs, where=f"on scenario {sid}'s first observation")
+    if report:
+        raise DriveE2EError(report[0].message) from error
 
 
 def init_params(policy, sim: Simulator, batch, key, assets=None):
-    """``policy.init(key, obs)`` on the first scenario's initial observation:
-    the policy's parameters for a rollout of ``batch`` (a device ``Scenario``
-    batch, (B, ...)) under ``sim``; ``assets``: the batch's ``SensorAssets``
-    when a sensor is on."""
+    """``policy.init(key, obs)`` on the first scenario's initial observation
+    (reset with ``key``): parameters for a rollout of ``batch`` (a device
+    ``Scenario`` batch, (B, ...)) under ``sim``, for scripts that build a
+    ``Rollout`` themselves; ``assets``: the batch's ``SensorAssets`` when a
+    sensor is on. ``evaluate`` uses ``begin_rollout`` instead."""
     obs = jax.tree_util.tree_map(lambda a: a[0], first_observation(sim, batch, key, assets))
     return policy.init(key, obs)
 

@@ -44,9 +44,8 @@ from drivee2e_jax.eval.closedloop import (
     _route_mean,
     _rows_and_events,
     _scenario_keys,
-    checked_params,
+    begin_rollout,
     device_batch,
-    first_observation,
     lane_free_warning,
     nonfinite_warning,
     with_policy_sensors,
@@ -143,25 +142,21 @@ def evaluate_stream(
             batch, meta = device_batch(packed)
             b = len(rows)
             keys = _scenario_keys(key, n_split, rows)
-            if ro is None:  # the first shard fixes the params, the chunk and the compiled batch size
-                params = checked_params(policy, sim, batch, key, assets, params, str(meta.scenario_id[0]))
-                total0 = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+            first_shard = ro is None
+            if first_shard:  # the first shard fixes the params, the chunk and the compiled batch size
+                total0 = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(batch))))
                 chunk = balanced_chunk(total0, chunk, every)
                 b0 = b
-            if hostbridge.is_host(policy):  # its batch is the shard itself (no padding rows)
-                hostbridge.begin(policy, meta, batch, lambda batch=batch, assets=assets: first_observation(sim, batch, key, assets))
-                run_batch, run_keys, run_assets = shard_rollout_inputs(batch, keys, assets, jax.local_devices()[:1])
-            else:
-                if b < b0:  # the last shard: padded to the compiled size with copies of its row 0
-                    batch, keys = pad_rows((batch, keys), b0)
-                    if assets is not None:
-                        assets = assets.replace(map_index=pad_rows(assets.map_index, b0))
-                run_batch, run_keys, run_assets = shard_rollout_inputs(batch, keys, assets, jax.local_devices()[:1])
-            if ro is None:
-                ro = Rollout(sim, policy, params, timing=timing, chunk=chunk, assets=run_assets)
+            if not hostbridge.is_host(policy) and b < b0:  # the last shard: padded to the compiled size with
+                batch, keys = pad_rows((batch, keys), b0)     # copies of its row 0 (a host policy's batch is the shard)
+                if assets is not None:
+                    assets = assets.replace(map_index=pad_rows(assets.map_index, b0))
+            run_batch, run_keys, run_assets = shard_rollout_inputs(batch, keys, assets, jax.local_devices()[:1])
+            if first_shard:
+                ro = Rollout(sim, policy, None, timing=timing, chunk=chunk, assets=run_assets)
             ro.assets = run_assets
-            total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(run_batch))))
-            carry = ro.init(run_batch, run_keys)
+            total = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(run_batch))))
+            carry = begin_rollout(ro, run_batch, run_keys, key, meta, params, init=first_shard)
             logs, steps = [], 0
             while steps < total:
                 carry, log = ro.advance(run_batch, carry)

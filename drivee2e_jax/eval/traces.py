@@ -53,7 +53,7 @@ import numpy as np
 
 from drivee2e_jax import hostbridge, replay
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.eval.closedloop import device_batch, first_observation, init_params, with_policy_sensors
+from drivee2e_jax.eval.closedloop import begin_rollout, device_batch, with_policy_sensors
 from drivee2e_jax.eval.runspec import RUN_JSON, RunSpec
 from drivee2e_jax.geometry import from_frame
 from drivee2e_jax.metrics import episode as ep
@@ -558,15 +558,12 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     batch, meta = device_batch(packed)
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(settings.seed)
-    # The first observation from the numpy rows: slicing the device batch
-    # leaf by leaf compiles one op per leaf (seconds on a CPU).
-    params = init_params(pol, sim, packed.scenario, key, assets)
-    hostbridge.begin(pol, meta, batch, lambda: first_observation(sim, packed.scenario, key, assets))
     total = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(batch))))
     chunk = balanced_chunk(total, 50, settings.timing.control_every)  # as evaluate chunks it
-    ro = TracingRollout(sim, pol, params, timing=settings.timing, chunk=chunk, assets=assets)
+    ro = TracingRollout(sim, pol, None, timing=settings.timing, chunk=chunk, assets=assets)
     pick = lambda tree: jax.tree_util.tree_map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731
-    carry = ro.init(batch, jax.random.split(key, len(packed)))
+    # The same reset and params as evaluate (one device: its batch is not padded).
+    carry = begin_rollout(ro, batch, jax.random.split(key, len(packed)), key, meta)
     first = pick(carry.sim)
     chunks, steps = [], 0
     while steps < total and not bool(np.all(np.asarray(carry.sim.episode.done))):

@@ -92,7 +92,8 @@ def compile_probe(suite: str, batch: int, chunk: int) -> dict:
     ro, scn = _setup(suite, batch, chunk)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     t0 = time.perf_counter()
-    ro.init.lower(scn, keys).compile()
+    for program in ro.lower_init(scn, keys):
+        program.compile()
     t1 = time.perf_counter()
     carry_shape = jax.eval_shape(ro.init, scn, keys)
     ro.advance.lower(scn, carry_shape).compile()
@@ -224,7 +225,8 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     chunk = balanced_chunk(total, chunk)
     ro = Rollout(sim, pol, params, chunk=chunk, assets=assets)
     t0 = time.perf_counter()
-    ro.init.lower(scn, keys).compile()
+    for program in ro.lower_init(scn, keys):
+        program.compile()
     carry_shape = jax.eval_shape(ro.init, scn, keys)
     ro.advance.lower(scn, carry_shape).compile()
     compile_s = time.perf_counter() - t0

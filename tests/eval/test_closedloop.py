@@ -59,6 +59,35 @@ def test_policy_branching_on_a_traced_value_is_one_line_with_its_line(tmp_path, 
     assert f"scenario {packed.meta.scenario_id[0]}'s first observation" in msg and "\n" not in msg
 
 
+@pytest.mark.parametrize("body, expected", [
+    ("""\
+        def initial_state(self, obs):
+            if obs.ego[0] > -1.0:
+                return {"n": jnp.zeros(())}
+            return {"n": jnp.ones(())}
+    """, "initial_state(obs) branches on a traced value (Python if/while/bool on an array) at {path}:{line}; "
+        "use jnp.where or jax.lax.cond "
+        "(traced on scenario s_straight's first observation)"),
+    ("""\
+        def initial_state(self, obs):
+            return {"name": "history"}
+    """, "initial_state returned a state with a str 'history' at ['name'], expected arrays only"),
+], ids=["branches", "str_leaf"])
+def test_a_broken_initial_state_is_one_line_although_it_is_traced_in_the_reset(tmp_path, packed, body, expected):
+    """``initial_state`` is traced inside the compiled batch reset (``Rollout.reset``),
+    before the params exist: its failure is still the checker's one line."""
+    path, pol = _policy(tmp_path, textwrap.dedent(body) + textwrap.dedent("""\
+        def act(self, params, obs, state, key):
+            return Controls(throttle=z(), brake=z(), steer=z()), state
+    """))
+    with pytest.raises(DriveE2EError) as e:
+        evaluate(pol, packed.select([0]), None)
+    msg = str(e.value)
+    lines = path.read_text().splitlines()
+    line = lines.index("        if obs.ego[0] > -1.0:") + 1 if "        if obs.ego[0] > -1.0:" in lines else None
+    assert msg.startswith(f"{path}: ") and expected.format(path=path, line=line) in msg and "\n" not in msg, msg
+
+
 def test_nan_actions_and_a_lane_free_map_are_warned_about(tmp_path, packed):
     """The user's report: an all-NaN policy scores DS > 0 and nothing says so;
     a map without lanes gives 100 % off-lane silently."""
