@@ -84,6 +84,30 @@ def _all_finite(action) -> jnp.ndarray:
     return jnp.all(jnp.stack(leaves)) if leaves else jnp.ones((), bool)
 
 
+def _sim_functions(sim: Simulator):
+    """``sim``'s (reset, step, observe) as the rollout calls them: for a plain
+    ``Simulator`` the ``jax.jit``-wrapped functions shared by every rollout of
+    an equal config (``_shared_sim_functions``), else its own methods."""
+    if type(sim) is Simulator:
+        try:
+            return _shared_sim_functions(sim.config)
+        except TypeError:  # an unhashable config: nothing to share
+            pass
+    return sim.reset, sim.step, sim.observe
+
+
+@functools.lru_cache(maxsize=16)
+def _shared_sim_functions(config):
+    """jit-wrapped reset / step / observe of ``Simulator(config)``, one set per
+    config. Called inside a rollout's own jit they are inlined by XLA (the
+    compiled program is the same), but JAX traces each one once per argument
+    shapes for the process, not once per rollout: a bench of several policies,
+    the checkpoints of a trend and the pages of ``view`` trace the simulator
+    once (it is most of a rollout's tracing time)."""
+    sim = Simulator(config)
+    return jax.jit(sim.reset), jax.jit(sim.step, static_argnames=("observe",)), jax.jit(sim.observe)
+
+
 @struct.dataclass
 class Start:
     """A reset batch before the policy's parameters are needed (``Rollout.reset``).
@@ -124,6 +148,7 @@ class Rollout:
         self.assets = assets
         self.timing = timing or ControlTiming()
         self.chunk = int(chunk)
+        self._sim_reset, self._sim_step, self._sim_observe = _sim_functions(sim)
         # Sensor assets: the map raster table is shared (broadcast), the map
         # index is per scenario; the policy params are broadcast.
         ax = sensors.assets_axes(assets)
@@ -162,7 +187,7 @@ class Rollout:
 
     def _reset_one(self, scenario: Scenario, key, assets):
         k_reset, _, key = jax.random.split(key, 3)  # the middle key was the policy's (kept: same streams)
-        sim_state, obs = self.sim.reset(k_reset, scenario, assets)
+        sim_state, obs = self._sim_reset(k_reset, scenario, assets)
         return sim_state, self.policy.initial_state(obs), key, obs
 
     def _start_one(self, sim_state: SimState, pstate, key, first_obs, params) -> Carry:
@@ -176,7 +201,7 @@ class Rollout:
 
     def _decide(self, scenario: Scenario, carry: Carry, assets, params, k_act):
         """(the policy's action, its new state) on the current observation."""
-        obs = self.sim.observe(scenario, carry.sim, assets)
+        obs = self._sim_observe(scenario, carry.sim, assets)
         return self.policy.act(params, obs, carry.policy_state, k_act)
 
     def _step_one(self, scenario: Scenario, carry: Carry, assets, params, query=None):
@@ -204,7 +229,7 @@ class Rollout:
         else:
             applied = proposed
             queue = None
-        sim_state, _, log = self.sim.step(scenario, carry.sim, applied, assets, observe=False)
+        sim_state, _, log = self._sim_step(scenario, carry.sim, applied, assets, observe=False)
         if self.sim.config.score.name == "navsim" and isinstance(applied, Waypoints):
             log = log.replace(plan=applied.xy)  # NAVSIM's extended comfort compares consecutive plans
         nonfinite = carry.nonfinite + (log.active & ~_all_finite(applied)).astype(jnp.int32)
