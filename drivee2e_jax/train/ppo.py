@@ -303,8 +303,11 @@ class PPO:
         self.opt = optax.multi_transform({"actor": group(cfg.lr), "critic": group(critic_lr)},
                                          {"actor": "actor", "critic": "critic", "log_std": "actor"})
         sim = Simulator(env_params.config)
-        self._episode_steps = jax.vmap(sim.episode_steps)(env_params.scenarios)
+        self._episode_steps = jax.jit(jax.vmap(sim.episode_steps))(env_params.scenarios)
         self.update = jax.jit(self._update)
+        # One compiled program: run op by op, the reset of the environments
+        # and the model's init compiled ~1,000 small programs (~45 s on a CPU).
+        self._init = jax.jit(self._init_runner)
 
     # -- pieces ------------------------------------------------------------
 
@@ -325,6 +328,9 @@ class PPO:
     def init(self, key, actor_params=None) -> Runner:
         """A fresh runner: environments reset, critic initialised, the actor
         ``actor_params`` (None: the model's random init)."""
+        return self._init(key, actor_params)
+
+    def _init_runner(self, key, actor_params) -> Runner:
         cfg = self.cfg
         k_env, k_actor, k_critic, key = jax.random.split(key, 4)
         obs, env_state = self.env.reset(jax.random.split(k_env, cfg.num_envs), self.env_params)
