@@ -101,11 +101,23 @@ def _shared_sim_functions(config):
     """jit-wrapped reset / step / observe of ``Simulator(config)``, one set per
     config. Called inside a rollout's own jit they are inlined by XLA (the
     compiled program is the same), but JAX traces each one once per argument
-    shapes for the process, not once per rollout: a bench of several policies,
-    the checkpoints of a trend and the pages of ``view`` trace the simulator
-    once (it is most of a rollout's tracing time)."""
+    shapes for the process, not once per rollout: a bench of several policies
+    and the checkpoints of a trend trace the simulator once (it is most of a
+    rollout's tracing time; ``view`` clears JAX's caches between policies)."""
     sim = Simulator(config)
     return jax.jit(sim.reset), jax.jit(sim.step, static_argnames=("observe",)), jax.jit(sim.observe)
+
+
+def longest_episode(sim: Simulator, batch: Scenario) -> int:
+    """Steps of the longest episode of ``batch`` (B, ...): the max of
+    ``sim.episode_steps`` over its rows, in one compiled pass per config (op
+    by op, a vmap compiles one small program per primitive)."""
+    return int(jnp.max(_batch_episode_steps(sim.config, batch)))
+
+
+#: (B,) int32 ``Simulator(config).episode_steps`` of every row of a batch, compiled once per config.
+_batch_episode_steps = jax.jit(lambda config, batch: jax.vmap(Simulator(config).episode_steps)(batch),
+                               static_argnums=0)
 
 
 @struct.dataclass
@@ -258,7 +270,7 @@ class Rollout:
         keys = jax.random.split(key, b)
         carry = self.init(batch, keys)
         if max_steps is None:
-            max_steps = int(np.max(np.asarray(jax.vmap(self.sim.episode_steps)(batch))))
+            max_steps = longest_episode(self.sim, batch)
         logs = []
         done_steps = 0
         while done_steps < max_steps:

@@ -23,7 +23,14 @@ from drivee2e_jax.metrics import abilities, finegrained, navsim, nuplan
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.observe.bev import bev_label
-from drivee2e_jax.rollout import ControlTiming, LogReplay, Rollout, balanced_chunk, shard_rollout_inputs
+from drivee2e_jax.rollout import (
+    ControlTiming,
+    LogReplay,
+    Rollout,
+    balanced_chunk,
+    longest_episode,
+    shard_rollout_inputs,
+)
 from drivee2e_jax.sim import SimConfig, Simulator
 
 
@@ -127,7 +134,7 @@ def evaluate(
     if hostbridge.is_host(policy):  # one host call per step for the whole batch, on one device
         devices = devices or jax.local_devices()[:1]
     b = int(batch.ego_index.shape[0])
-    total = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(batch))))
+    total = longest_episode(sim, batch)
     chunk = balanced_chunk(total, chunk, (timing or ControlTiming()).control_every)
 
     t0 = time.perf_counter()

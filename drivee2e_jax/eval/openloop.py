@@ -48,6 +48,7 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import device_batch, with_policy_sensors
 from drivee2e_jax.metrics import openloop as olm
 from drivee2e_jax.observe import sensors
+from drivee2e_jax.rollout import longest_episode
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Controls, Waypoints
 
@@ -291,7 +292,7 @@ def collect_openloop(
             f"policy waypoints cover {k} x {policy_dt} s, open-loop evaluation needs {horizon} x {waypoint_dt} s"
         )
 
-    total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+    total = longest_episode(sim, batch)
     n_queries = max(1, math.ceil(total / every))
     run = _cached(
         _RUNNERS,

@@ -52,7 +52,7 @@ from drivee2e_jax.eval.closedloop import (
 )
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import sensors
-from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, pad_rows, shard_rollout_inputs
+from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, longest_episode, pad_rows, shard_rollout_inputs
 from drivee2e_jax.sim import SimConfig, Simulator
 
 
@@ -144,7 +144,7 @@ def evaluate_stream(
             keys = _scenario_keys(key, n_split, rows)
             first_shard = ro is None
             if first_shard:  # the first shard fixes the params, the chunk and the compiled batch size
-                total0 = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(batch))))
+                total0 = longest_episode(sim, batch)
                 chunk = balanced_chunk(total0, chunk, every)
                 b0 = b
             if not hostbridge.is_host(policy) and b < b0:  # the last shard: padded to the compiled size with
@@ -155,7 +155,7 @@ def evaluate_stream(
             if first_shard:
                 ro = Rollout(sim, policy, None, timing=timing, chunk=chunk, assets=run_assets)
             ro.assets = run_assets
-            total = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(run_batch))))
+            total = longest_episode(sim, run_batch)
             carry = begin_rollout(ro, run_batch, run_keys, key, meta, params, init=first_shard)
             logs, steps = [], 0
             while steps < total:

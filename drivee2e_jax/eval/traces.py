@@ -66,7 +66,7 @@ from drivee2e_jax.observe.png import png_bytes
 from drivee2e_jax.observe.sensor_api import SensorContext, SensorFrames
 from drivee2e_jax.observe.sensors import SensorConfig
 from drivee2e_jax.policy import load_policy, resolve_policy_path
-from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk
+from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, longest_episode
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Waypoints, to_numpy
 
@@ -558,7 +558,7 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     batch, meta = device_batch(packed)
     sim = Simulator(cfg)
     key = jax.random.PRNGKey(settings.seed)
-    total = int(np.max(np.asarray(jax.jit(jax.vmap(sim.episode_steps))(batch))))
+    total = longest_episode(sim, batch)
     chunk = balanced_chunk(total, 50, settings.timing.control_every)  # as evaluate chunks it
     ro = TracingRollout(sim, pol, None, timing=settings.timing, chunk=chunk, assets=assets)
     pick = lambda tree: jax.tree_util.tree_map(lambda a: np.asarray(a)[rows], tree)  # noqa: E731

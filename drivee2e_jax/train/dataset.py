@@ -50,6 +50,7 @@ from drivee2e_jax.observe import sensors as sens
 from drivee2e_jax.observe.bev import BevConfig, check_bev
 from drivee2e_jax.observe.sensors import SensorConfig
 from drivee2e_jax.policy import load_policy, reference_policy_dir
+from drivee2e_jax.rollout import longest_episode
 from drivee2e_jax.scenario import load_suite
 from drivee2e_jax.scenario.flat import flatten_dataclass, unflatten_dataclass
 from drivee2e_jax.sim import SimConfig, Simulator
@@ -225,7 +226,7 @@ def build_dataset(suite, split: str, out: str | Path, cfg: DatasetConfig = Datas
     sim = Simulator(sim_cfg)
     assets = sens.build_assets(packed, sim_cfg.sensors, suite.maps)
     batch, _ = device_batch(packed)
-    total = int(np.max(np.asarray(jax.vmap(sim.episode_steps)(batch))))
+    total = longest_episode(sim, batch)
     n_records = max(1, math.ceil(total / cfg.every))
     run = make_recorder(sim, cfg, n_records, sens.assets_axes(assets))
 
