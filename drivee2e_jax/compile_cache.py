@@ -18,6 +18,9 @@ first imported (and which processes started afterwards inherit); once JAX is
 imported it updates ``jax.config``. So every ``drivee2e`` command enables the
 cache, and those that never need JAX (``drivee2e suite info`` from a warm
 packed cache, ``serve-policy``) do not pay ~1 s for importing it.
+
+The rollout's lowered programs are stored in a subfolder of the same folder
+(``lowered_cache``), so a warm start skips tracing them too.
 """
 
 from __future__ import annotations

@@ -31,6 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from drivee2e_jax.lowered_cache import fingerprint, stored_jit
+from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import sensors
 from drivee2e_jax.policy import StatelessPolicy
 from drivee2e_jax.sim import SimState, Simulator
@@ -120,6 +122,18 @@ _batch_episode_steps = jax.jit(lambda config, batch: jax.vmap(Simulator(config).
                                static_argnums=0)
 
 
+def episode_results(sim: Simulator, episode, route) -> ep.EpisodeResult:
+    """``metrics.episode.finalize`` of every row: the scores of the episodes
+    of a rollout's final carry (``carry.sim.episode``, (B, ...)) on their
+    routes ((B, ...)), in one compiled call per score config (op by op, a
+    vmap compiles ~40 small programs per call)."""
+    return _batch_finalize(episode, route, sim.config.score)
+
+
+_batch_finalize = jax.jit(lambda episode, route, score: jax.vmap(ep.finalize, in_axes=(0, 0, None))(episode, route, score),
+                          static_argnums=2)
+
+
 @struct.dataclass
 class Start:
     """A reset batch before the policy's parameters are needed (``Rollout.reset``).
@@ -164,10 +178,16 @@ class Rollout:
         # Sensor assets: the map raster table is shared (broadcast), the map
         # index is per scenario; the policy params are broadcast.
         ax = sensors.assets_axes(assets)
-        self.reset = _with_params(jax.jit(functools.partial(self._reset_batch, axes=ax)), lambda: (self.assets,))
-        self._start = jax.jit(jax.vmap(self._start_one, in_axes=(0, 0, 0, None, None)))
-        self.advance = jax.jit(jax.vmap(self._advance_one, in_axes=(0, 0, ax, None)))
-        self.advance = _with_params(self.advance, lambda: (self.assets, self.params))
+        # Each program's lowered module is stored beside the compile cache
+        # (lowered_cache): its trace depends on the arguments and on these.
+        # Fingerprinted once for the three (the policy may hold large arrays).
+        whole = functools.cache(lambda: fingerprint((type(self), self.sim, self.policy, self.timing, self.chunk, ax)))
+        ident = lambda program: lambda: (program, whole())  # noqa: E731
+        self.reset = _with_params(stored_jit(functools.partial(self._reset_batch, axes=ax), ident("reset")),
+                                  lambda: (self.assets,))
+        self._start = stored_jit(jax.vmap(self._start_one, in_axes=(0, 0, 0, None, None)), ident("start"))
+        self.advance = _with_params(stored_jit(jax.vmap(self._advance_one, in_axes=(0, 0, ax, None)), ident("advance")),
+                                    lambda: (self.assets, self.params))
 
     def init(self, batch: Scenario, keys) -> Carry:
         """The carry of every scenario at t = 0: ``start(reset(batch, keys), batch)``."""

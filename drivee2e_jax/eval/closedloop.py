@@ -28,6 +28,7 @@ from drivee2e_jax.rollout import (
     LogReplay,
     Rollout,
     balanced_chunk,
+    episode_results,
     longest_episode,
     shard_rollout_inputs,
 )
@@ -159,7 +160,7 @@ def evaluate(
         steps += chunk
         if progress:
             progress(min(steps, total), total)
-    results = _head(jax.vmap(ep.finalize, in_axes=(0, 0, None))(carry.sim.episode, run_batch.route, sim.config.score), b)
+    results = _head(episode_results(sim, carry.sim.episode, run_batch.route), b)
     wall_s = time.perf_counter() - t1
     limit_kmh = _route_mean(_head(carry.sim.ctx.speed_limit, b), np.asarray(batch.route.valid)) * 3.6
     stacked = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *logs)

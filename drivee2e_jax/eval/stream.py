@@ -50,9 +50,16 @@ from drivee2e_jax.eval.closedloop import (
     nonfinite_warning,
     with_policy_sensors,
 )
-from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import sensors
-from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, longest_episode, pad_rows, shard_rollout_inputs
+from drivee2e_jax.rollout import (
+    ControlTiming,
+    Rollout,
+    balanced_chunk,
+    episode_results,
+    longest_episode,
+    pad_rows,
+    shard_rollout_inputs,
+)
 from drivee2e_jax.sim import SimConfig, Simulator
 
 
@@ -168,8 +175,7 @@ def evaluate_stream(
                 if bool(np.all(np.asarray(carry.sim.episode.done))):
                     break
             max_steps = max(max_steps, min(steps, total))
-            results = _head(jax.vmap(ep.finalize, in_axes=(0, 0, None))(carry.sim.episode, run_batch.route,
-                                                                         sim.config.score), b)
+            results = _head(episode_results(sim, carry.sim.episode, run_batch.route), b)
             limit_kmh = _route_mean(_head(carry.sim.ctx.speed_limit, b), np.asarray(packed.scenario.route.valid)) * 3.6
             nonfinite_all.append(_head(carry.nonfinite, b))
             lanes_ok = np.asarray(packed.scenario.map.lanes.valid).reshape(b, -1).any(axis=1)

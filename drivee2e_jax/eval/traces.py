@@ -66,7 +66,7 @@ from drivee2e_jax.observe.png import png_bytes
 from drivee2e_jax.observe.sensor_api import SensorContext, SensorFrames
 from drivee2e_jax.observe.sensors import SensorConfig
 from drivee2e_jax.policy import load_policy, resolve_policy_path
-from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, longest_episode
+from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, episode_results, longest_episode
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Waypoints, to_numpy
 
@@ -574,9 +574,7 @@ def _simulate(pol, settings: RunSettings, suite, packed, rows: np.ndarray) -> di
     logs, actions, states = jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=1), *chunks)
     states = jax.tree_util.tree_map(lambda a, b: np.concatenate([a[:, None], b], axis=1),
                                     first.replace(ctx=None), states)
-    # One compiled call, not op by op (eager vmap compiles every primitive).
-    res = jax.jit(lambda e, r: jax.vmap(ep.finalize, in_axes=(0, 0, None))(e, r, cfg.score))(
-        carry.sim.episode, batch.route)
+    res = episode_results(sim, carry.sim.episode, batch.route)
     return {
         "sim": sim,
         "assets": assets,

@@ -92,10 +92,11 @@ def compile_probe(suite: str, batch: int, chunk: int) -> dict:
     ro, scn = _setup(suite, batch, chunk)
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     t0 = time.perf_counter()
-    for program in ro.lower_init(scn, keys):
+    programs = ro.lower_init(scn, keys)
+    for program in programs:
         program.compile()
     t1 = time.perf_counter()
-    carry_shape = jax.eval_shape(ro.init, scn, keys)
+    carry_shape = programs[-1].out_info  # the carry init returns (no second trace of the reset)
     ro.advance.lower(scn, carry_shape).compile()
     t2 = time.perf_counter()
     return {"compile_init_s": t1 - t0, "compile_s": t2 - t1}
@@ -225,10 +226,10 @@ def sweep_bev_lidar(suite_name: str, chunk: int, steps: int | None, batch: int |
     chunk = balanced_chunk(total, chunk)
     ro = Rollout(sim, pol, params, chunk=chunk, assets=assets)
     t0 = time.perf_counter()
-    for program in ro.lower_init(scn, keys):
+    programs = ro.lower_init(scn, keys)
+    for program in programs:
         program.compile()
-    carry_shape = jax.eval_shape(ro.init, scn, keys)
-    ro.advance.lower(scn, carry_shape).compile()
+    ro.advance.lower(scn, programs[-1].out_info).compile()  # carry shapes: what init returns
     compile_s = time.perf_counter() - t0
     carry = ro.init(scn, keys)
     carry, _ = ro.advance(scn, carry)  # runs the compiled chunk once (jit cache), then restart

@@ -4,8 +4,12 @@
 of ``drivee2e bench --split val --policy log_replay --policy expert --policy
 stop --policy constant_velocity`` as recorded before the layer restructuring
 (341d779). Refactors and speed work must reproduce them: the same statuses,
-successes and events, float columns within 1e-6 relative (issue 22 allows
-1e-4; nothing here should move at all).
+successes and events, float columns within 1e-5 relative (issue 22 allows
+1e-4). Until 2026-11-28 they held to 1e-6; since the episode scores are
+computed by one compiled program instead of op by op (``rollout.episode_results``,
+as ``view``'s re-simulation already did) XLA's fused float32 arithmetic moved
+one value by 6.6e-6 relative (expert, twin15_0173, ``efficiency_pct``
+376.32 -> 376.3225); nothing else moved beyond 1e-6.
 
 The stored rows are those of the twin15 suite generated where they were
 recorded. The generator's traffic simulation is float-sensitive to numpy's
@@ -43,7 +47,7 @@ def _same(a, b) -> bool:
         return a == b
     if isinstance(a, int) and isinstance(b, int):
         return a == b
-    return math.isclose(float(a), float(b), rel_tol=1e-6, abs_tol=1e-9)
+    return math.isclose(float(a), float(b), rel_tol=1e-5, abs_tol=1e-9)
 
 
 def _diff_row(want: dict, got: dict, new_columns_ok: bool = False) -> list[str]:
