@@ -13,9 +13,10 @@ A stored program is only reused when everything its trace depended on is
 the same, which the key says:
 
 * the code: every ``.py`` file of this package (``package_fingerprint``),
-  and for a policy defined outside it, its module file and every other module
-  loaded from outside the standard library and installed packages (its
-  helpers), the versions of the installed packages whose classes it uses;
+  and for a policy defined outside it, its module file and global values
+  and every other module loaded from outside the standard library and
+  installed packages (its helpers), the versions of the installed packages
+  whose classes it uses;
 * the caller's identity (``identity``): for a rollout its class, the
   simulator and its config, the policy object (every attribute, recursively;
   arrays by content), the control timing and the chunk;
@@ -57,6 +58,7 @@ from typing import Any
 
 import jax
 import numpy as np
+from jax import export as jax_export  # not an attribute of jax before it is imported (JAX 0.5)
 
 ENV = "DRIVEE2E_LOWERED_CACHE"
 #: The folder's name inside JAX's compilation cache folder.
@@ -66,7 +68,8 @@ MAGIC = b"drivee2e-lowered/1\n"
 #: JAX options that change what a function traces to.
 _JAX_OPTIONS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_numpy_rank_promotion",
                 "jax_numpy_dtype_promotion", "jax_default_prng_impl", "jax_threefry_partitionable",
-                "jax_enable_checks", "jax_debug_nans", "jax_debug_infs", "jax_disable_jit")
+                "jax_enable_checks", "jax_debug_nans", "jax_debug_infs", "jax_disable_jit",
+                "jax_use_shardy_partitioner")
 _PACKAGE = Path(__file__).resolve().parent
 #: In-process, the last ``_KEEP`` programs used: key -> (jitted call of the
 #: exported module, output tree), or None (not exportable: the plain jit runs).
@@ -150,6 +153,7 @@ class _Digest:
         self.h = hashlib.sha256()
         self.user_code = False
         self._stack: list[int] = []
+        self._modules: set[str] = set()  # user modules whose globals are in
 
     def put(self, *parts: Any) -> None:
         for p in parts:
@@ -164,8 +168,26 @@ class _Digest:
         elif kind == "user":
             self.user_code = True
             self.put("user", hashlib.sha256(path.read_bytes()).hexdigest())
+            if name not in self._modules:
+                self._modules.add(name)
+                self.module_data(sys.modules[name])
         else:  # covered by package_fingerprint
             self.put("package", path.relative_to(_PACKAGE).as_posix())
+
+    def module_data(self, module: types.ModuleType) -> None:
+        """A user module's global values (its file says what its code is,
+        not what ``X = os.environ[...]`` or a file read at import gave):
+        every global but the functions, classes and modules it defines or
+        imports; one the key cannot describe counts by its name only."""
+        for name, v in sorted(vars(module).items()):
+            if name.startswith("__") or isinstance(v, (type, types.ModuleType, types.FunctionType,
+                                                       types.BuiltinFunctionType)):
+                continue
+            self.put("global", name)
+            try:
+                self.value(v)
+            except Unfingerprintable:
+                self.put("opaque")
 
     def cls(self, c: type) -> None:
         if c.__module__ == "__main__":
@@ -315,8 +337,9 @@ class StoredJit:
             sharding = getattr(x, "sharding", None)
             if sharding is not None and len(sharding.device_set) > 1:
                 return None
-            aval = jax.typeof(x)
-            avals.append((aval.shape, str(aval.dtype), bool(getattr(aval, "weak_type", False))))
+            if not (hasattr(x, "shape") and hasattr(x, "dtype")):
+                return None  # a Python scalar argument: left to the plain jit
+            avals.append((tuple(x.shape), str(x.dtype), bool(getattr(x, "weak_type", False))))
         if self._ident is None:
             try:
                 identity = self._identity() if callable(self._identity) else self._identity
@@ -349,11 +372,12 @@ class StoredJit:
             return ys
 
         try:
-            exported = jax.export.export(jax.jit(flat))(*leaves)
+            exported = jax_export.export(jax.jit(flat))(*leaves)
             skeleton = pickle.dumps(jax.tree_util.tree_unflatten(out["tree"], list(range(out["tree"].num_leaves))))
+            module = exported.serialize()
         except Exception:  # noqa: BLE001 - not exportable (host callbacks, ...) or a bug the plain jit will raise
             return None
-        _store(key, skeleton, exported.serialize())
+        _store(key, skeleton, module)
         return jax.jit(exported.call), out["tree"]
 
 
@@ -380,7 +404,7 @@ def _load(key: str):
         n = int.from_bytes(blob[len(MAGIC):len(MAGIC) + 8], "little")
         start = len(MAGIC) + 8
         skeleton = pickle.loads(blob[start:start + n])
-        exported = jax.export.deserialize(bytearray(blob[start + n:]))
+        exported = jax_export.deserialize(bytearray(blob[start + n:]))
     except Exception:  # noqa: BLE001 - missing, unreadable or corrupt: lowered again and rewritten
         return None
     return jax.jit(exported.call), jax.tree_util.tree_structure(skeleton)

@@ -75,6 +75,14 @@ for name in names:
 print(f"{len(names)} modules import")
 PY
 
+step "the lowered-program store serialises (jax.export needs flatbuffers)"
+"$work/venv/bin/python" - <<'PY' || fail "jax.export cannot serialise here: the rollout's lowered programs would never be stored"
+import jax, numpy as np
+from jax import export
+export.deserialize(export.export(jax.jit(lambda x: x + 1))(np.float32(1)).serialize())
+print("ok")
+PY
+
 step "drivee2e bench --limit 5"
 "$drivee2e" bench --limit 5 --no-progress --out "$work/results" | tee "$work/bench.log" \
   || fail "drivee2e bench exited non-zero"

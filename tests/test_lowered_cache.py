@@ -161,6 +161,9 @@ def test_fingerprint_follows_the_code_not_the_module_name(tmp_path):
         before = lc.fingerprint(a)
         helper.write_text("GAIN = 3.0\n")  # a helper the policy imports changed: another program
         assert lc.fingerprint(a) != before
+        before = lc.fingerprint(a)
+        sys.modules["lc_policy_name_a"].SCALE = 2.0  # a global set at import (from the environment, a file)
+        assert lc.fingerprint(a) != before
     finally:
         sys.path.remove(str(tmp_path))
         for name in ("lc_helper_mod", "lc_policy_name_a", "lc_policy_name_b"):
