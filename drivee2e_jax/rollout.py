@@ -112,9 +112,15 @@ def _shared_sim_functions(config):
 
 def longest_episode(sim: Simulator, batch: Scenario) -> int:
     """Steps of the longest episode of ``batch`` (B, ...): the max of
-    ``sim.episode_steps`` over its rows, in one compiled pass per config (op
-    by op, a vmap compiles one small program per primitive)."""
-    return int(jnp.max(_batch_episode_steps(sim.config, batch)))
+    ``episode_lengths``."""
+    return int(jnp.max(episode_lengths(sim, batch)))
+
+
+def episode_lengths(sim: Simulator, batch: Scenario) -> jnp.ndarray:
+    """(B,) int32 ``sim.episode_steps`` of every row of ``batch`` (B, ...), in
+    one compiled pass per config (op by op, a vmap compiles one small program
+    per primitive)."""
+    return _batch_episode_steps(sim.config, batch)
 
 
 #: (B,) int32 ``Simulator(config).episode_steps`` of every row of a batch, compiled once per config.

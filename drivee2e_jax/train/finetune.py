@@ -73,6 +73,7 @@ from drivee2e_jax.models import base
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
 from drivee2e_jax.progress import ProgressFn
+from drivee2e_jax.rollout import episode_lengths
 from drivee2e_jax.scenario import load_suite
 from drivee2e_jax.sim import SimConfig, SimState, Simulator, sanitize_controls
 from drivee2e_jax.train.loop import check_run_dir, trim_log
@@ -511,7 +512,7 @@ def finetune(cfg: FinetuneConfig, out: str | Path, *, resume: bool = False, forc
     carry = reset(scenarios, idx, jax.random.split(k, cfg.batch))
     # The pool starts at t = 0 everywhere; the random restarts (reset_prob)
     # spread it over episode times within a few steps, at no extra rollout.
-    max_steps = np.asarray(jax.vmap(tuner.sim.episode_steps)(scenarios))
+    max_steps = np.asarray(episode_lengths(tuner.sim, scenarios))
 
     t0 = time.perf_counter()
     loss = float("nan")

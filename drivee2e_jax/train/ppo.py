@@ -75,6 +75,7 @@ from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
 from drivee2e_jax.models.vector_mlp import scene_features
 from drivee2e_jax.progress import ProgressFn
+from drivee2e_jax.rollout import episode_lengths
 from drivee2e_jax.sim import Simulator
 from drivee2e_jax.train.finetune import load_init
 from drivee2e_jax.train.loop import check_run_dir, trim_log
@@ -303,7 +304,7 @@ class PPO:
         self.opt = optax.multi_transform({"actor": group(cfg.lr), "critic": group(critic_lr)},
                                          {"actor": "actor", "critic": "critic", "log_std": "actor"})
         sim = Simulator(env_params.config)
-        self._episode_steps = jax.jit(jax.vmap(sim.episode_steps))(env_params.scenarios)
+        self._episode_steps = episode_lengths(sim, env_params.scenarios)
         self.update = jax.jit(self._update)
         # One compiled program: run op by op, the reset of the environments
         # and the model's init compiled ~1,000 small programs (~45 s on a CPU).
