@@ -435,7 +435,7 @@ def drift(scenario: Scenario, dt: float, num_steps: int, params: IDMParams = IDM
 
     Returns {"mean_m", "max_m", "lagging_frac", "agent_steps"}.
     """
-    scenario = jax.tree_util.tree_map(jnp.asarray, scenario)
+    scenario = jax.device_put(scenario)
     fn = functools.partial(drift_errors, dt=dt, num_steps=num_steps, params=params)
     if scenario.tracks.xy.ndim == 4:
         fn = jax.vmap(fn)

@@ -46,7 +46,6 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from drivee2e_jax import hostapi
@@ -406,7 +405,7 @@ def _probe(suite, sensors: SensorConfig, batch: int, steps: int) -> _Probe:
     sim = Simulator(SimConfig(sensors=sensors))
     assets = build_assets(packed, sensors, loaded.maps)
     ax = assets_axes(assets)
-    scenario = jax.tree_util.tree_map(jnp.asarray, packed.scenario)
+    scenario = jax.device_put(packed.scenario)
     n = len(packed)
     reset = jax.jit(jax.vmap(sim.reset, in_axes=(0, 0, ax)))
     step = jax.jit(jax.vmap(lambda s, st, a, x: sim.step(s, st, a, x)[:2], in_axes=(0, 0, 0, ax)))

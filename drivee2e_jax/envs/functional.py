@@ -257,8 +257,8 @@ def make_params(suite, split: str | None = "train", *, config: SimConfig | None 
         raise ValueError("make_params: the BEV needs the suite's maps: pass maps= with a PackedBatch")
     assets = sensors.build_assets(packed, config.sensors, maps)
     if assets is not None:
-        assets = jax.tree_util.tree_map(jnp.asarray, assets)
-    scenarios = jax.tree_util.tree_map(jnp.asarray, packed.scenario)
+        assets = jax.device_put(assets)
+    scenarios = jax.device_put(packed.scenario)
     params = EnvParams(scenarios=scenarios, assets=assets, config=config,
                        reward=RewardConfig() if reward is None else reward)
     return params.with_contexts()

@@ -236,7 +236,7 @@ def device_batch(packed, limit: int | None = None):
     if limit is not None:
         batch = jax.tree_util.tree_map(lambda a: a[:limit], batch)
         meta = meta.select(np.arange(min(limit, len(meta))))
-    return jax.tree_util.tree_map(jnp.asarray, batch), meta
+    return jax.device_put(batch), meta
 
 
 def with_policy_sensors(config: SimConfig, policy) -> SimConfig:

@@ -113,7 +113,7 @@ def logged_front_distance(packed) -> np.ndarray:
 
         return jax.vmap(at)(jnp.arange(tr.xy.shape[1]))
 
-    return np.asarray(jax.jit(jax.vmap(one))(jax.tree_util.tree_map(jnp.asarray, packed.scenario)))
+    return np.asarray(jax.jit(jax.vmap(one))(jax.device_put(packed.scenario)))
 
 
 def _in_traffic(packed) -> np.ndarray:

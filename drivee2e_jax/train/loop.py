@@ -173,7 +173,7 @@ def train(cfg: TrainConfig, out: str | Path, *, resume: bool = False, force: boo
 
     opt, schedule = make_optimizer(cfg, cfg.epochs * steps_per_epoch)
     k_init = jax.random.PRNGKey(cfg.seed)
-    params = model.init(k_init, jax.tree_util.tree_map(jnp.asarray, ds.first().obs))
+    params = model.init(k_init, jax.device_put(ds.first().obs))
     opt_state = opt.init(params)
     step, start_epoch = 0, 0
     done = ckpt.list_checkpoints(out)

@@ -488,8 +488,8 @@ def _runner_of(state: dict, like: Runner) -> Runner:
     leaves = [jnp.asarray(state["runner"][str(i)]) for i in range(treedef.num_leaves)]
     env_state, history, obs, key = jax.tree_util.tree_unflatten(treedef, leaves)
     params = {"actor": state["params"], "critic": state["critic"], "log_std": jnp.asarray(state["log_std"])}
-    params = jax.tree_util.tree_map(jnp.asarray, params)
-    return Runner(params=params, opt_state=jax.tree_util.tree_map(jnp.asarray, state["opt_state"]),
+    params = jax.device_put(params)
+    return Runner(params=params, opt_state=jax.device_put(state["opt_state"]),
                   env_state=env_state, history=history, obs=obs, key=key,
                   update=jnp.asarray(int(state["step"]), jnp.int32))
 
