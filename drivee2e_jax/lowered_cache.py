@@ -51,7 +51,6 @@ import os
 import pickle
 import sys
 import sysconfig
-import tempfile
 import types
 from pathlib import Path
 from typing import Any
@@ -59,6 +58,8 @@ from typing import Any
 import jax
 import numpy as np
 from jax import export as jax_export  # not an attribute of jax before it is imported (JAX 0.5)
+
+from drivee2e_jax.files import atomic_write
 
 ENV = "DRIVEE2E_LOWERED_CACHE"
 #: The folder's name inside JAX's compilation cache folder.
@@ -311,25 +312,25 @@ class StoredJit:
         self._jitted = jitted
         self._identity = identity
         self._ident: str | None = None  # fingerprint of identity + environment, on first use
+        self._keys: dict = {}  # (tree, avals) -> stored-program key, or None (not stored)
 
     def __call__(self, *args):
-        program = self._program(args)
+        program, leaves = self._program(args)
         if program is None:
             return self._jitted(*args)
         call, out_tree = program
-        return jax.tree_util.tree_unflatten(out_tree, call(*jax.tree_util.tree_leaves(args)))
+        return jax.tree_util.tree_unflatten(out_tree, call(*leaves))
 
     def lower(self, *args):
         """Lowered program (``.compile()``, ``.out_info`` as the output tree)."""
-        program = self._program(args)
+        program, leaves = self._program(args)
         if program is None:
             return self._jitted.lower(*args)
         call, out_tree = program
-        return _Lowered(call.lower(*jax.tree_util.tree_leaves(args)), out_tree)
+        return _Lowered(call.lower(*leaves), out_tree)
 
     # -------------------------------------------------------------------------
-    def _key(self, args) -> str | None:
-        leaves, tree = jax.tree_util.tree_flatten(args)
+    def _key(self, leaves, tree) -> str | None:
         avals = []
         for x in leaves:
             if isinstance(x, jax.core.Tracer):
@@ -339,31 +340,34 @@ class StoredJit:
                 return None
             if not (hasattr(x, "shape") and hasattr(x, "dtype")):
                 return None  # a Python scalar argument: left to the plain jit
-            avals.append((tuple(x.shape), str(x.dtype), bool(getattr(x, "weak_type", False))))
-        if self._ident is None:
-            try:
-                identity = self._identity() if callable(self._identity) else self._identity
-                self._ident = fingerprint((identity, _environment()))
-            except Unfingerprintable:
-                self._ident = ""
-        if not self._ident:
-            return None
-        return hashlib.sha256(f"{self._ident}|{tree}|{avals}".encode()).hexdigest()
+            avals.append((tuple(x.shape), x.dtype, bool(getattr(x, "weak_type", False))))
+        signature = (tree, tuple(avals))
+        if signature not in self._keys:  # hashing the tree's text costs ~1 ms: once per signature
+            if self._ident is None:
+                try:
+                    identity = self._identity() if callable(self._identity) else self._identity
+                    self._ident = fingerprint((identity, _environment()))
+                except Unfingerprintable:
+                    self._ident = ""
+            self._keys[signature] = (hashlib.sha256(f"{self._ident}|{tree}|{avals}".encode()).hexdigest()
+                                     if self._ident else None)
+        return self._keys[signature]
 
     def _program(self, args):
-        key = self._key(args)
+        """(the stored program or None, the flat arguments)."""
+        leaves, tree = jax.tree_util.tree_flatten(args)
+        key = self._key(leaves, tree)
         if key is None:
-            return None
+            return None, leaves
         if key in _PROGRAMS:
             _PROGRAMS.move_to_end(key)
         else:
-            _PROGRAMS[key] = _load(key) or self._export(key, args)
+            _PROGRAMS[key] = _load(key) or self._export(key, leaves, tree)
             while len(_PROGRAMS) > _KEEP:
                 _PROGRAMS.popitem(last=False)
-        return _PROGRAMS[key]
+        return _PROGRAMS[key], leaves
 
-    def _export(self, key: str, args):
-        leaves, in_tree = jax.tree_util.tree_flatten(args)
+    def _export(self, key: str, leaves, in_tree):
         out = {}
 
         def flat(*xs):
@@ -412,16 +416,10 @@ def _load(key: str):
 
 def _store(key: str, skeleton: bytes, module: bytes) -> None:
     path = _path(key)
-    tmp = None
+    if path is None:
+        return
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{key[:16]}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
-            f.write(MAGIC + len(skeleton).to_bytes(8, "little") + skeleton + module)
-        os.replace(tmp, path)
-        tmp = None
+        atomic_write(path, lambda f: f.write(MAGIC + len(skeleton).to_bytes(8, "little") + skeleton + module),
+                     binary=True)
     except OSError:  # a read-only or full cache folder: the program still runs, unstored
         pass
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
