@@ -485,10 +485,9 @@ def _state_of(runner: Runner) -> dict:
 
 def _runner_of(state: dict, like: Runner) -> Runner:
     treedef = jax.tree_util.tree_structure((like.env_state, like.history, like.obs, like.key))
-    leaves = [jnp.asarray(state["runner"][str(i)]) for i in range(treedef.num_leaves)]
+    leaves = jax.device_put([state["runner"][str(i)] for i in range(treedef.num_leaves)])
     env_state, history, obs, key = jax.tree_util.tree_unflatten(treedef, leaves)
-    params = {"actor": state["params"], "critic": state["critic"], "log_std": jnp.asarray(state["log_std"])}
-    params = jax.device_put(params)
+    params = jax.device_put({"actor": state["params"], "critic": state["critic"], "log_std": state["log_std"]})
     return Runner(params=params, opt_state=jax.device_put(state["opt_state"]),
                   env_state=env_state, history=history, obs=obs, key=key,
                   update=jnp.asarray(int(state["step"]), jnp.int32))
