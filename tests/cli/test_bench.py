@@ -19,21 +19,10 @@ from drivee2e_jax.policy import resolve_policy_path
 from drivee2e_jax.records import SuiteRecord
 from drivee2e_jax.scenario.schema import write_suite
 from tests.helpers import sim_scenarios as ss
+from tests.helpers.road3 import bench as _bench
 
 REQUIRED = ("policy", "scenario_id", "split", "intersection_id", "behavior", "route_completion", "infraction_score",
             "driving_score", "success", "status", "eval_time_s", "collisions_vehicle", "red_light")
-
-
-@pytest.fixture(scope="module")
-def suite_dir(tmp_path_factory):
-    maps = {m.map_id: m for m in (ss.road_map(), ss.road_map(obstacle=True))}
-    scns = [ss.clean(), ss.blocked_by_car(), ss.red_light()]
-    return write_suite(SuiteRecord("road3", "1", maps, scns), tmp_path_factory.mktemp("suites") / "road3")
-
-
-def _bench(suite_dir, out, *extra):
-    return main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress",
-                 "--policy", "log_replay", "--policy", "stop", *extra])
 
 
 def test_bench_writes_tables_and_resumes(suite_dir, tmp_path, capsys, monkeypatch):

@@ -12,21 +12,7 @@ import pytest
 
 from drivee2e_jax.cli import main
 from drivee2e_jax.eval import bench as bench_mod
-from drivee2e_jax.records import SuiteRecord
-from drivee2e_jax.scenario.schema import write_suite
-from tests.helpers import sim_scenarios as ss
-
-
-@pytest.fixture(scope="module")
-def suite_dir(tmp_path_factory):
-    maps = {m.map_id: m for m in (ss.road_map(), ss.road_map(obstacle=True))}
-    scns = [ss.clean(), ss.blocked_by_car(), ss.red_light()]
-    return write_suite(SuiteRecord("road3", "1", maps, scns), tmp_path_factory.mktemp("suites") / "road3")
-
-
-def _bench(suite_dir, out, *extra):
-    return main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress",
-                 "--policy", "log_replay", "--policy", "stop", *extra])
+from tests.helpers.road3 import bench as _bench
 
 
 def _rows(out):
