@@ -5,6 +5,15 @@ strips ``optimization_barrier`` before fusion: a per-object value (a box's
 cos / sin) read by every (object, ray) or (pixel, box) pair is then
 recomputed for each pair. A reduction is never fused into its consumers.
 
+It is not free: the producer is fused INTO the reduction, whose loop can run
+it slower than the vectorised loop it would otherwise get (JAX 0.10.2: 32-
+column masks of 47 route boxes + their OR, 25.6 CPU-us per scenario
+materialised against 9.8 not; ``experiments/perf/bev_boxes.py``). Every
+site in the sensors pays in place (docs/performance.md, "The sensor floor
+against today's step"), but a new site is worth measuring in the whole
+sensor (``experiments/perf/sweep_parts.py``), not only in isolation: the
+two can disagree.
+
 Other backends: ``materialize`` is chosen per lowering platform
 (``jax.lax.platform_dependent``): the reduction trick on CPU, a plain
 ``optimization_barrier`` (the value itself, no extra buffer or pass)
