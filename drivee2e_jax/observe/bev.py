@@ -336,14 +336,16 @@ def box_row_spans(xy_ego: Array, cos: Array, sin: Array, half_lw: Array, cfg: Be
     return first, last
 
 
-def _draw_boxes_bits(xy_ego: Array, yaw_ego: Array, lw: Array, channel: Array, valid: Array,
-                     num_channels: int, cfg: BevConfig) -> Array:
-    """Hard-mode ``draw_boxes``: (H, W) int32, bit c set iff the pixel centre
-    is inside a valid box of channel c (row spans -> 32-column bit masks ->
-    OR over boxes -> per-pixel word; see the module docstring)."""
-    cos, sin = jnp.cos(yaw_ego), jnp.sin(yaw_ego)
-    first, last = box_row_spans(xy_ego, cos, sin, 0.5 * lw, cfg)  # (N, H)
-    words = -(-cfg.width // 32)
+def span_masks(first: Array, last: Array, drawn: Array, width: int) -> Array:
+    """(NW, N, H) uint32 32-column bit masks of row spans: bit b of word w is
+    set iff column ``32 w + b`` is in ``[first, last]`` of that box and row
+    and the box is ``drawn``; NW = ceil(width / 32).
+
+    Args:
+      first, last: (N, H) int32 column spans (``box_row_spans``; empty when
+        first > last).  drawn: (N,) bool.  width: W, image columns.
+    """
+    words = -(-width // 32)
     base = jnp.asarray(np.arange(words) * 32, jnp.int32)[:, None, None]
     lo, hi = first - base, last - base + 1  # (NW, N, H): the span inside each word, [lo, hi)
     full = jnp.uint32(0xFFFFFFFF)
@@ -352,9 +354,19 @@ def _draw_boxes_bits(xy_ego: Array, yaw_ego: Array, lw: Array, channel: Array, v
         return jnp.where(n >= 32, full, jnp.left_shift(jnp.uint32(1), jnp.clip(n, 0, 31).astype(jnp.uint32))
                          - jnp.uint32(1))
 
+    return jnp.where((hi <= 0) | (lo >= 32) | ~drawn[:, None], jnp.uint32(0), below(hi) & ~below(lo))
+
+
+def _draw_boxes_bits(xy_ego: Array, yaw_ego: Array, lw: Array, channel: Array, valid: Array,
+                     num_channels: int, cfg: BevConfig) -> Array:
+    """Hard-mode ``draw_boxes``: (H, W) int32, bit c set iff the pixel centre
+    is inside a valid box of channel c (row spans -> 32-column bit masks ->
+    OR over boxes -> per-pixel word; see the module docstring)."""
+    cos, sin = jnp.cos(yaw_ego), jnp.sin(yaw_ego)
+    first, last = box_row_spans(xy_ego, cos, sin, 0.5 * lw, cfg)  # (N, H)
     drawn = valid & (channel >= 0) & (channel < num_channels)
-    mask = jnp.where((hi <= 0) | (lo >= 32) | ~drawn[:, None], jnp.uint32(0), below(hi) & ~below(lo))
-    mask = _materialize(mask)  # (NW, N, H) uint32, bit b = column 32 w + b
+    mask = _materialize(span_masks(first, last, drawn, cfg.width))  # (NW, N, H)
+    words = mask.shape[0]
     of_channel = (channel[None, :] == jnp.arange(num_channels)[:, None])[:, None, :, None]  # (C, 1, N, 1)
     # One OR reduction over the boxes (a log-depth tree of elementwise ORs was
     # ~5x slower for 47 route boxes on XLA:CPU; experiments/perf/bev_boxes.py).
@@ -501,6 +513,18 @@ def draw_route(ego_xy: Array, ego_yaw: Array, route_xy: Array, route_valid: Arra
       route_xy: (P, 2) world route points ahead of the ego, m.  route_valid: (P,) bool.
       packed: (hard mode) return (H, W) int32 0/1 instead.
     """
+    centres, yaw, lw, valid = route_boxes(ego_xy, ego_yaw, route_xy, route_valid, cfg)
+    out = draw_boxes(centres, yaw, lw, jnp.zeros(yaw.shape[0], jnp.int32), valid, 1, cfg.route_per_tile, cfg,
+                     packed)
+    return out if packed else out[..., 0]
+
+
+def route_boxes(ego_xy: Array, ego_yaw: Array, route_xy: Array, route_valid: Array,
+                cfg: BevConfig) -> tuple[Array, Array, Array, Array]:
+    """The boxes ``draw_route`` draws, in the ego frame: (N, 2) centres (m),
+    (N,) headings relative to the ego (rad), (N, 2) length and width (m) and
+    (N,) valid, one per segment between consecutive ``cfg.route_stride``-th
+    points (N = ceil(P / stride) - 1). Arguments as ``draw_route``."""
     rel = geometry.to_frame(route_xy[::cfg.route_stride], ego_xy, ego_yaw)
     route_valid = route_valid[::cfg.route_stride]
     a, b = rel[:-1], rel[1:]
@@ -508,10 +532,7 @@ def draw_route(ego_xy: Array, ego_yaw: Array, route_xy: Array, route_valid: Arra
     length = geometry.safe_norm(seg) + cfg.route_width
     lw = jnp.stack([length, jnp.full_like(length, cfg.route_width)], -1)
     yaw = jnp.arctan2(seg[:, 1], seg[:, 0])
-    valid = route_valid[:-1] & route_valid[1:]
-    out = draw_boxes(0.5 * (a + b), yaw, lw, jnp.zeros(a.shape[0], jnp.int32), valid, 1, cfg.route_per_tile, cfg,
-                     packed)
-    return out if packed else out[..., 0]
+    return 0.5 * (a + b), yaw, lw, route_valid[:-1] & route_valid[1:]
 
 
 def route_window(route_xy: Array, route_valid: Array, route_index: Array, cfg: BevConfig) -> tuple[Array, Array]:

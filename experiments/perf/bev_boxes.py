@@ -24,22 +24,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from drivee2e_jax import geometry
 from drivee2e_jax.observe import bev
 
 CFG = bev.BevConfig()
-WORDS = CFG.width // 32
-
-
-def _below(n):
-    return jnp.where(n >= 32, jnp.uint32(0xFFFFFFFF),
-                     jnp.left_shift(jnp.uint32(1), jnp.clip(n, 0, 31).astype(jnp.uint32)) - jnp.uint32(1))
 
 
 def _masks(first, last):
-    base = jnp.asarray(np.arange(WORDS) * 32, jnp.int32)[:, None, None]
-    lo, hi = first - base, last - base + 1
-    return jnp.where((hi <= 0) | (lo >= 32), jnp.uint32(0), _below(hi) & ~_below(lo))
+    """``bev.span_masks`` of every box (the route's boxes are all drawn)."""
+    return bev.span_masks(first, last, jnp.ones(first.shape[:1], bool), CFG.width)
 
 
 def _or(m):
@@ -58,13 +50,8 @@ def _or_tree(m):
 
 
 def _spans(ego_xy, ego_yaw, route_xy):
-    rel = geometry.to_frame(route_xy[::CFG.route_stride], ego_xy, ego_yaw)
-    a, b = rel[:-1], rel[1:]
-    seg = b - a
-    length = geometry.safe_norm(seg) + CFG.route_width
-    lw = jnp.stack([length, jnp.full_like(length, CFG.route_width)], -1)
-    yaw = jnp.arctan2(seg[:, 1], seg[:, 0])
-    return bev.box_row_spans(0.5 * (a + b), jnp.cos(yaw), jnp.sin(yaw), 0.5 * lw, CFG)
+    xy, yaw, lw, _ = bev.route_boxes(ego_xy, ego_yaw, route_xy, jnp.ones(route_xy.shape[:1], bool), CFG)
+    return bev.box_row_spans(xy, jnp.cos(yaw), jnp.sin(yaw), 0.5 * lw, CFG)
 
 
 def _unpack(planes):
