@@ -4,8 +4,9 @@
     python experiments/perf/compile_parts.py --batch 64 --threads
 
 For ``run.py``'s state-only rollout (``log_replay``, twin15): the seconds
-spent tracing + lowering and compiling (XLA) each of the three programs a run
-compiles (``reset``, ``start``, ``advance``), with the process CPU seconds of
+spent tracing + lowering (``init``'s two programs together, then ``advance``)
+and compiling (XLA) each of the three programs a run compiles (``reset``,
+``start``, ``advance``), with the process CPU seconds of
 each compile (XLA:CPU compiles a program's kernels on several threads). The
 persistent compilation cache and the lowered-program store are off, so every
 figure is cold. ``--threads``: compile the three lowered programs in parallel
@@ -42,12 +43,8 @@ def main() -> int:
     keys = jax.random.split(jax.random.PRNGKey(0), args.batch)
     row: dict = {"batch": args.batch, "chunk": args.chunk}
     t = time.perf_counter()
-    reset = ro.reset.lower(scn, keys)
-    row["reset_lower_s"] = time.perf_counter() - t
-    st = reset.out_info
-    t = time.perf_counter()
-    start = ro._start.lower(st.sim, st.policy_state, st.key, st.first_obs, ro.params)
-    row["start_lower_s"] = time.perf_counter() - t
+    reset, start = ro.lower_init(scn, keys)
+    row["init_lower_s"] = time.perf_counter() - t
     t = time.perf_counter()
     advance = ro.advance.lower(scn, start.out_info)
     row["advance_lower_s"] = time.perf_counter() - t
