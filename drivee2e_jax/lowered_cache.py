@@ -59,7 +59,7 @@ import jax
 import numpy as np
 from jax import export as jax_export  # not an attribute of jax before it is imported (JAX 0.5)
 
-from drivee2e_jax.files import atomic_write
+from drivee2e_jax.files import atomic_write, sha256_file
 
 ENV = "DRIVEE2E_LOWERED_CACHE"
 #: The folder's name inside JAX's compilation cache folder.
@@ -143,7 +143,7 @@ def _user_modules() -> list[str]:
         except Unfingerprintable:
             continue
         if kind == "user" and path is not None and path.is_file():
-            out.append(hashlib.sha256(path.read_bytes()).hexdigest())
+            out.append(sha256_file(path))
     return sorted(out)
 
 
@@ -168,7 +168,7 @@ class _Digest:
             self.put("installed", name, _version(name.partition(".")[0]))
         elif kind == "user":
             self.user_code = True
-            self.put("user", hashlib.sha256(path.read_bytes()).hexdigest())
+            self.put("user", sha256_file(path))
             if name not in self._modules:
                 self._modules.add(name)
                 self.module_data(sys.modules[name])
