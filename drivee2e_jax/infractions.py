@@ -214,6 +214,50 @@ def lane_footprint(ego: EgoState, ego_lw, lane_xy, lane_point_valid, lane_valid,
     return multi, jnp.where(jnp.isfinite(outside), outside, jnp.float32(1e3))
 
 
+def area_distance(points, edges, edges_valid):
+    """(Q,) distance (m) of each point outside an area given by its boundary
+    edges; 0 inside or on it.
+
+    Exact for any union of simple polygons (holes included) whose boundary
+    rings are flattened into ``edges`` (``scenario.drivable.drivable_edges``):
+    a point is inside when a ray from it towards +x crosses an odd number of
+    edges (even-odd rule), and its distance to the area is then its distance
+    to the nearest edge. An area without any valid edge has distance 0 (not
+    judged).
+
+    Args:
+      points: (Q, 2) m.  edges: (D, 4) [ax, ay, bx, by] m.  edges_valid: (D,) bool.
+    """
+    px, py = points[:, 0:1], points[:, 1:2]  # (Q, 1)
+    ax, ay, bx, by = (edges[None, :, i] for i in range(4))  # (1, D)
+    straddles = (ay > py) != (by > py)
+    dy = jnp.where(straddles, by - ay, 1.0)
+    x_cross = ax + (py - ay) * (bx - ax) / dy
+    crossings = straddles & edges_valid[None] & (px < x_cross)
+    inside = (jnp.sum(crossings, axis=1) % 2) == 1  # (Q,)
+    ex, ey = bx - ax, by - ay
+    t = jnp.clip(((px - ax) * ex + (py - ay) * ey) / jnp.maximum(ex * ex + ey * ey, 1e-12), 0.0, 1.0)
+    dx, dyy = px - (ax + t * ex), py - (ay + t * ey)
+    d2 = jnp.where(edges_valid[None], dx * dx + dyy * dyy, jnp.inf).min(axis=1)
+    dist = jnp.sqrt(jnp.where(jnp.isfinite(d2), d2, 0.0))
+    return jnp.where(inside | ~edges_valid.any(), 0.0, dist)
+
+
+def drivable_excess(ego: EgoState, ego_lw, map_data: MapData):
+    """() float32 how far the farthest ego corner lies outside the drivable
+    area, m (0 when all four are on it).
+
+    nuPlan's ``drivable_area_compliance`` measures each corner's distance to
+    the DRIVABLE_AREA layer (``get_distance_to_nearest_map_object``) and fails
+    at >= 0.3 m; NAVSIM's ``PDMScorer`` fails when any corner is outside the
+    drivable polygons. Both read this value (``area_distance`` over
+    ``MapData.drivable_edges``: the union of the map's drivable polygons, or of
+    its lane areas when it has none).
+    """
+    corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
+    return area_distance(corners, map_data.drivable_edges, map_data.drivable_edges_valid).max()
+
+
 def logged_overlap_spans(tracks: Tracks, ego_index, ego_lw):
     """Where the LOGGED ego box already overlaps another agent's logged box.
 

@@ -458,7 +458,8 @@ class Simulator:
         )
         lane_xy, lane_pv, lane_ok, lane_w = _lane_rows(scenario, state.ctx.lanes)
         off, offset = infractions.lane_status(ego, lane_xy, lane_pv, lane_ok, lane_w)
-        multi_lane, excess = infractions.lane_footprint(ego, lw, lane_xy, lane_pv, lane_ok, lane_w)
+        multi_lane, _ = infractions.lane_footprint(ego, lw, lane_xy, lane_pv, lane_ok, lane_w)
+        excess = infractions.drivable_excess(ego, lw, scenario.map)
         rear_offset = getattr(self.config.dynamics, "lr", 0.0)
         kind = infractions.collision_type(
             ego, lw, rear_offset, agents.xy[hit_row], agents.yaw[hit_row], tr.size[hit_row, :2],

@@ -16,6 +16,7 @@ Symbols used in shapes:
 * ``E`` lane boundaries / road edges
 * ``C`` crosswalks, ``V`` polygon vertices
 * ``S`` stop lines, ``G`` drivable-area polygons, ``O`` static obstacles
+* ``D`` edges of the drivable area's boundary
 * ``R`` route points (1 m apart, as CARLA's route planner densifies them)
 * ``K`` successor lanes per lane
 """
@@ -220,6 +221,13 @@ class MapData:
       drivable:         Polylines (G, V) drivable-area polygons.
       obstacles:        Polylines (O, V) static obstacle footprints.
       obstacle_height:  (O,) float32, m.
+      drivable_edges:   (D, 4) float32 [ax, ay, bx, by] edges of the boundary of
+                        the drivable AREA (the union of ``drivable``, or of the
+                        lane areas when the map has no drivable polygons), m,
+                        every ring (holes too); ``scenario.drivable``.
+      drivable_edges_valid: (D,) bool.
+      drivable_source:  () int32 ``scenario.drivable.DrivableSource``
+                        (0 none, 1 drivable polygons, 2 lane areas).
     """
 
     lanes: Polylines
@@ -238,6 +246,9 @@ class MapData:
     drivable: Polylines
     obstacles: Polylines
     obstacle_height: Array
+    drivable_edges: Array
+    drivable_edges_valid: Array
+    drivable_source: Array
 
 
 @struct.dataclass

@@ -122,6 +122,7 @@ def _used(f: dict[str, np.ndarray], meta: SuiteMeta) -> dict[str, np.ndarray]:
         "obstacles": last(f["map.obstacles.valid"], 1),
         "route": last(f["route.valid"], 1),
         "successors": last(f["map.lane_successors"] >= 0, 2),
+        "drivable_edges": last(f["map.drivable_edges_valid"], 1),
     }
 
 

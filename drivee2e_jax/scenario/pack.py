@@ -24,6 +24,8 @@ Semantics (pinned by tests/scenario/test_pack.py):
   with ``command == VOID`` and ``valid == False``.
 * **Map.** Polylines keep their points as a valid prefix; lane successors and
   stop-line lanes are converted from lane ids to lane rows (-1 = none/pad).
+  ``drivable_edges`` is the boundary of the union of the drivable polygons
+  (or of the lanes' areas when the map has none), ``scenario.drivable``.
 * **Signals.** Row ``s`` of ``signals.state`` is the state array of stop line
   ``s``'s signal group (UNKNOWN when the group is -1 or absent from the
   record), extended to ``T`` with its last state.
@@ -61,6 +63,7 @@ from drivee2e_jax.records import (
 )
 from drivee2e_jax.scenario.batch import META_STR, PackedBatch, SuiteMeta, bucket
 from drivee2e_jax.scenario.cache import PACK_FORMAT  # its home (no JAX): the cache key needs it
+from drivee2e_jax.scenario.drivable import drivable_edges
 from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
 from drivee2e_jax.scenario.routes import densify_route, junction_area, route_commands
 from drivee2e_jax.scenario.sizes import PackSizes, alloc_leaves, map_of, record_needs
@@ -123,6 +126,10 @@ def _pack_map(m: MapRecord, sizes: PackSizes) -> dict[str, np.ndarray]:
     poly("map.obstacles", [o.polygon for o in m.obstacles])
     for i, o in enumerate(m.obstacles):
         one["map.obstacle_height"][i] = o.height
+    edges, source = drivable_edges(m)
+    one["map.drivable_edges"][: len(edges)] = edges
+    one["map.drivable_edges_valid"][: len(edges)] = True
+    one["map.drivable_source"] = np.int32(source)
     one["_stop_line_group"] = group
     return one
 

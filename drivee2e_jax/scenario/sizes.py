@@ -22,6 +22,7 @@ import numpy as np
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import MapRecord, ScenarioRecord
+from drivee2e_jax.scenario.drivable import drivable_edges
 from drivee2e_jax.scenario.routes import densify_route
 
 __all__ = ["PackSizes", "LEAVES", "alloc_leaves", "record_needs", "map_needs", "map_of"]
@@ -41,7 +42,8 @@ class PackSizes:
       (O), obstacle_vertices (V_O: static obstacle footprint vertices, sized
       apart because the simulator tests every obstacle against the ego each
       step and footprints are small), route (R: 1 m route points),
-      successors (K).
+      successors (K), drivable_edges (D: edges of the drivable area's
+      boundary, ``scenario.drivable``).
     """
 
     agents: int
@@ -57,11 +59,13 @@ class PackSizes:
     route: int
     successors: int
     obstacle_vertices: int = 4
+    drivable_edges: int = 16
 
     #: ``fit`` rounds each maximum up to a multiple of this.
     MULTIPLE: typing.ClassVar[dict[str, int]] = dict(
         agents=8, steps=8, lanes=8, points=4, boundaries=8, crosswalks=4, vertices=4,
         stop_lines=4, drivable=4, obstacles=4, route=16, successors=4, obstacle_vertices=4,
+        drivable_edges=16,
     )
 
     def __post_init__(self):
@@ -147,6 +151,9 @@ LEAVES: dict[str, tuple[tuple, Any, Any]] = {
     **_poly("map.drivable", "drivable", "vertices"),
     **_poly("map.obstacles", "obstacles", "obstacle_vertices"),
     "map.obstacle_height": (("obstacles",), _F, 0),
+    "map.drivable_edges": (("drivable_edges", 4), _F, 0),
+    "map.drivable_edges_valid": (("drivable_edges",), _B, False),
+    "map.drivable_source": ((), _I, 0),
     "signals.state": (("stop_lines", "steps"), _I, "signal"),
     "route.xy": (("route", 2), _F, "edge"),
     "route.arc": (("route",), _F, "edge"),
@@ -193,6 +200,7 @@ def map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         most(m.drivable_areas, len, lambda i: f"{where} drivable_areas[{i}]"),
     )
     obstacle_verts = most(m.obstacles, lambda o: len(o.polygon), lambda i: f"{where} obstacles[{i}].polygon")
+    edges, _ = drivable_edges(m)
     return {
         "lanes": (len(m.lanes), f"{where} lanes"),
         "points": pts,
@@ -204,6 +212,7 @@ def map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         "obstacles": (len(m.obstacles), f"{where} obstacles"),
         "obstacle_vertices": obstacle_verts,
         "successors": most(m.lanes, lambda ln: len(ln.successors), lambda i: f"{where} lanes[{i}].successors"),
+        "drivable_edges": (len(edges), f"{where} drivable area boundary edges"),
     }
 
 
