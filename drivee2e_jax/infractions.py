@@ -258,6 +258,70 @@ def drivable_excess(ego: EgoState, ego_lw, map_data: MapData):
     return area_distance(corners, map_data.drivable_edges, map_data.drivable_edges_valid).max()
 
 
+#: Lanes whose polygon is tested per tick: those whose bounding box, grown by
+#: the ego's half-diagonal, holds the ego centre -- every lane that holds any
+#: point of the ego box is among them. ``LaneHits.overflow`` says when more
+#: than this many boxes held the centre (the lanes beyond were not tested).
+LANES_PER_TICK = 12
+
+
+def lane_boxes(lane_polygons, pad) -> jnp.ndarray:
+    """(L, 4) float32 [xmin, ymin, xmax, ymax] of each lane polygon grown by
+    ``pad`` m (empty, +inf/-inf, for a padded row); once per episode.
+
+    Args:
+      lane_polygons: ``types.Polylines`` (L, P) (``MapData.lane_polygons``).
+      pad: () m, the ego's half-diagonal: a lane polygon holding any point of
+        the ego box then holds its centre in its grown box.
+    """
+    ok = lane_polygons.point_valid & lane_polygons.valid[:, None]
+    x, y = lane_polygons.xy[..., 0], lane_polygons.xy[..., 1]
+    lo = lambda a: jnp.where(ok, a, jnp.inf).min(axis=1) - pad  # noqa: E731
+    hi = lambda a: jnp.where(ok, a, -jnp.inf).max(axis=1) + pad  # noqa: E731
+    return jnp.stack([lo(x), lo(y), hi(x), hi(y)], axis=-1)
+
+
+@struct.dataclass
+class LaneHits:
+    """Which lanes hold which points this tick (``lane_hits``).
+
+    Attributes:
+      rows:     (M,) int32 lane rows tested (those whose box holds the ego
+                centre; -1 padded).
+      inside:   (Q, M) bool point q lies in (or on) lane ``rows[m]``'s polygon.
+      overflow: () bool more than M lane boxes held the centre.
+    """
+
+    rows: jnp.ndarray
+    inside: jnp.ndarray
+    overflow: jnp.ndarray
+
+
+def lane_hits(points, centre, boxes, lane_polygons, m: int = LANES_PER_TICK) -> LaneHits:
+    """Point-in-polygon of ``points`` (Q, 2), all within the ego box, against
+    every lane whose grown box (``lane_boxes``) holds the ego ``centre`` (2,),
+    at most ``m``.
+
+    Exact for each lane: the polygon is the lane's own area (its boundaries,
+    or its curved centreline +- width / 2; ``MapData.lane_polygons``), tested
+    with the even-odd rule along every edge, curves and junction connectors
+    included -- no straight-over-a-car-length approximation. Every lane that
+    can hold a point of the ego box is tested unless ``overflow``.
+    """
+    holds = (boxes[:, 0] <= centre[0]) & (centre[0] <= boxes[:, 2]) & (boxes[:, 1] <= centre[1]) & (centre[1] <= boxes[:, 3])
+    m = min(m, boxes.shape[0])
+    score, rows = jax.lax.top_k(holds.astype(jnp.float32), m)
+    ok = score > 0
+    rows = jnp.where(ok, rows, -1).astype(jnp.int32)
+    safe = jnp.maximum(rows, 0)
+    xy, pv = lane_polygons.xy[safe], lane_polygons.point_valid[safe]
+
+    def one(p):
+        return jax.vmap(geometry.point_in_polygon, in_axes=(None, 0, 0))(p, xy, pv) & ok
+
+    return LaneHits(rows=rows, inside=jax.vmap(one)(points), overflow=jnp.sum(holds) > m)
+
+
 def logged_overlap_spans(tracks: Tracks, ego_index, ego_lw):
     """Where the LOGGED ego box already overlaps another agent's logged box.
 

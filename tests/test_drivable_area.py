@@ -15,12 +15,14 @@ import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from shapely.geometry import LineString, Point
+from shapely.geometry import LineString, Point, Polygon
 
+from drivee2e_jax import geometry as geo
 from drivee2e_jax import infractions as inf
 from drivee2e_jax.dynamics import ego_from_log
 from drivee2e_jax.records import LaneRecord, MapRecord
 from drivee2e_jax.scenario.drivable import DrivableSource, drivable_edges, drivable_union
+from drivee2e_jax.types import Polylines
 
 # A road: an L-shaped non-convex junction and a leg overlapping it.
 JUNCTION = np.array([[0, 0], [30, 0], [30, 10], [10, 10], [10, 30], [0, 30]], float)
@@ -112,3 +114,50 @@ def test_drivable_excess_is_the_farthest_corner():
     corners = shapely.points([[43, 9.5], [47, 9.5], [43, 7.5], [47, 7.5]])
     assert got == pytest.approx(max(union.distance(c) for c in corners), abs=1e-4)
     assert got == pytest.approx(1.5, abs=1e-4)
+
+
+# --------------------------------------------------------------------------
+# Lane polygons: which lanes hold the ego's points
+# --------------------------------------------------------------------------
+
+
+def _polylines(polys, n=64):
+    xy = np.zeros((len(polys), n, 2), np.float32)
+    pv = np.zeros((len(polys), n), bool)
+    for i, p in enumerate(polys):
+        xy[i, : len(p)] = p
+        pv[i, : len(p)] = True
+    return Polylines(xy=jnp.asarray(xy), point_valid=jnp.asarray(pv), valid=jnp.asarray(pv.any(1)))
+
+
+def _arc_lane(r, w=3.5, n=24):
+    """A quarter-circle lane of centre radius r about the origin, as a polygon."""
+    a = np.linspace(0, np.pi / 2, n)
+    outer = np.stack([(r + w / 2) * np.cos(a), (r + w / 2) * np.sin(a)], 1)
+    inner = np.stack([(r - w / 2) * np.cos(a), (r - w / 2) * np.sin(a)], 1)[::-1]
+    return np.concatenate([outer, inner])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.0, 90.0), st.floats(-3.0, 3.0), st.floats(-1.0, 1.0))
+def test_lane_hits_match_shapely_on_curved_lanes(deg, off, dyaw):
+    lanes = [_arc_lane(10.0), _arc_lane(13.5), np.array([[-50, -1.75], [50, -1.75], [50, 1.75], [-50, 1.75]])]
+    poly = _polylines(lanes)
+    a = np.radians(deg)
+    centre = np.array([(10.0 + off) * np.cos(a), (10.0 + off) * np.sin(a)])
+    yaw = a + np.pi / 2 + dyaw
+    ego = ego_from_log(jnp.asarray(centre, jnp.float32), jnp.asarray(yaw, jnp.float32), jnp.zeros(2), jnp.zeros(()))
+    corners = np.asarray(geo.box_corners(ego.xy, ego.yaw, 4.6, 2.0))
+    pts = np.concatenate([corners, centre[None]])
+    boxes = inf.lane_boxes(poly, jnp.hypot(2.3, 1.0))
+    hits = inf.lane_hits(jnp.asarray(pts, jnp.float32), ego.xy, boxes, poly)
+    rows = np.asarray(hits.rows)
+    got = np.zeros((len(pts), len(lanes)), bool)
+    for j, r in enumerate(rows):
+        if r >= 0:
+            got[:, r] = np.asarray(hits.inside)[:, j]
+    want = np.array([[Polygon(lp).contains(Point(p)) for lp in lanes] for p in pts])
+    # Points within 1 mm of an edge may go either way (float32 vs float64).
+    near_edge = np.array([[Polygon(lp).exterior.distance(Point(p)) < 1e-3 for lp in lanes] for p in pts])
+    assert np.all((got == want) | near_edge)
+    assert not bool(hits.overflow)
