@@ -38,8 +38,9 @@ NC    shapely intersects; at-fault = STOPPED_TRACK same rule via facts.at_fault;
       track once hit not-at-fault is ignored        object is a stopped track; at ego <= 0.05
       afterwards                                   it is STOPPED_EGO); ignored ids per
                                                    agent_hit_id as NAVSIM
-DAC   any corner outside the drivable polygons    facts.drivable_excess_m > 0 (lanes near the
-      (shapely contains, no tolerance)             route, centreline +- width/2), no tolerance
+DAC   any corner outside the drivable polygons    facts.drivable_excess_m > 0: a corner outside
+      (shapely contains, no tolerance)             the union of the map's drivable polygons,
+                                                   exact (infractions.drivable_excess); none
 DDC   centre not in an on-route lane, outside      centre not inside a lane running within
       intersections; travel summed over 1 s        90 deg of the ego heading (no route lane ids
       window; <2 m: 1, <6 m: 0.5, else 0           packed), outside connector lanes; same window

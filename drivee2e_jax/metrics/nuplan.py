@@ -24,9 +24,11 @@ Adaptations from nuPlan (all sources are motional/nuplan-devkit):
 ======================================  ==========================================================
 nuPlan                                  here
 ======================================  ==========================================================
-map polygons (lanes, lane connectors,   lanes are centrelines +- width/2; the drivable area is the
-roadblocks, DRIVABLE_AREA layer)        union of the lanes near the route (``drivable_excess_m``
-                                        from ``infractions``); a junction is a CONNECTOR lane
+map polygons (lanes, lane connectors,   the drivable area is the union of the map's drivable
+roadblocks, DRIVABLE_AREA layer)        polygons, exact (``infractions.drivable_excess``; nuPlan
+                                        also accepts a corner in the ego centre's lane polygon,
+                                        inside that area on these maps); lanes are centrelines
+                                        +- width/2; a junction is a CONNECTOR lane
 20 Hz history, us timestamps            the sim's steps (10 Hz by default), ``StepLog.t`` in s;
                                         only ``active`` steps are samples
 expert route = roadblocks the expert    ``scenario.route`` (the logged ego path at 1 m): progress
