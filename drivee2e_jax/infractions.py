@@ -19,7 +19,17 @@ from flax import struct
 
 from drivee2e_jax import geometry
 from drivee2e_jax.replay import SNAP, AgentStates
-from drivee2e_jax.types import Category, CollisionClass, CollisionType, EgoState, MapData, Marking, SignalState, Tracks
+from drivee2e_jax.types import (
+    Category,
+    CollisionClass,
+    CollisionType,
+    EgoState,
+    LaneType,
+    MapData,
+    Marking,
+    SignalState,
+    Tracks,
+)
 
 # Collision classes as CARLA's collision test names them.
 CLASS_WALKER = int(CollisionClass.PEDESTRIAN)
@@ -62,10 +72,12 @@ class StepFacts:
       collision_type: int32 ``CollisionType`` of this tick's agent contact
                      (-1 none; ``collision_type``).
       at_fault:      bool, that contact is the ego's fault (``at_fault``).
-      multi_lane:    bool, no single lane holds all four ego corners
-                     (``lane_footprint``).
+      multi_lane:    bool, no single lane polygon holds all four ego corners
+                     (``ego_lanes``).
+      lanes_overflow: bool, more lanes could hold the ego than ``ego_lanes``
+                     tested (``LANES_PER_TICK``): lane facts may be incomplete.
       drivable_excess_m: float32 how far the farthest ego corner lies outside
-                     the lanes near the route, m (0 inside).
+                     the map's drivable area, m (0 on it; ``drivable_excess``).
       speed_limit:   float32 lane speed limit at the ego's route point, m/s.
       nuplan:        ``metrics.nuplan.NuplanTick`` under the ``nuplan``
                      preset, else None.
@@ -91,6 +103,7 @@ class StepFacts:
     collision_type: jnp.ndarray
     at_fault: jnp.ndarray
     multi_lane: jnp.ndarray
+    lanes_overflow: jnp.ndarray
     drivable_excess_m: jnp.ndarray
     speed_limit: jnp.ndarray
     nuplan: Any = None
@@ -183,35 +196,6 @@ def at_fault(kind, multi_lane, drivable_excess_m):
     """
     lateral = (kind == CollisionType.ACTIVE_LATERAL) & (multi_lane | (drivable_excess_m > 0.0))
     return (kind == CollisionType.STOPPED_TRACK) | (kind == CollisionType.ACTIVE_FRONT) | lateral
-
-
-def lane_footprint(ego: EgoState, ego_lw, lane_xy, lane_point_valid, lane_valid, lane_width):
-    """Where the ego box lies relative to the M candidate lanes (any direction).
-
-    Each corner's signed offset from each lane is measured against the line
-    through the lane's nearest vertex along its local heading (lanes are
-    straight over a car's length; at a 10 m junction radius the error at a
-    corner 2.5 m ahead is 0.3 m). A corner is inside a lane within its
-    width / 2.
-
-    Returns (multi_lane: () bool, no single lane holds all four corners --
-    nuPlan's "ego in multiple lanes" from ``ego_lane_change.py``;
-    drivable_excess_m: () float32, the largest distance of a corner outside
-    every lane, 0 when each corner is in some lane -- the drivable area being
-    the union of the lanes).
-    """
-    corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
-
-    def offsets(xy, valid):
-        _, heading, j = geometry.nearest_segment(ego.xy, xy, valid, with_vertex=True)
-        u = jnp.stack([jnp.cos(heading), jnp.sin(heading)])
-        return geometry.cross2(u, corners - xy[j])  # (4,) m, left positive
-
-    lat = jax.vmap(offsets)(lane_xy, lane_point_valid)  # (M, 4)
-    excess = jnp.where(lane_valid[:, None], jnp.abs(lat) - 0.5 * lane_width[:, None], jnp.inf)
-    multi = ~jnp.any(jnp.all(excess <= 0.0, axis=1))
-    outside = jnp.maximum(excess.min(axis=0).max(), 0.0)
-    return multi, jnp.where(jnp.isfinite(outside), outside, jnp.float32(1e3))
 
 
 def area_distance(points, edges, edges_valid):
@@ -320,6 +304,61 @@ def lane_hits(points, centre, boxes, lane_polygons, m: int = LANES_PER_TICK) -> 
         return jax.vmap(geometry.point_in_polygon, in_axes=(None, 0, 0))(p, xy, pv) & ok
 
     return LaneHits(rows=rows, inside=jax.vmap(one)(points), overflow=jnp.sum(holds) > m)
+
+
+@struct.dataclass
+class EgoLanes:
+    """Where the ego box lies among the map's lanes this tick, from the lanes'
+    own polygons (``ego_lanes``). M = ``LANES_PER_TICK`` lanes tested.
+
+    Attributes:
+      multi_lane: () bool no single lane polygon holds all four corners
+                  (nuPlan ``ego_lane_change.py``: "ego in multiple lanes";
+                  also True when no lane holds them, e.g. off the lanes).
+      centre_in:  (M,) bool the ego centre lies in lane ``rows[m]``.
+      rear_in:    (M,) bool the ego's rear axle does.
+      tangent:    (M, 2) unit driving direction of lane ``rows[m]`` at the
+                  ego centre (its centreline's nearest segment).
+      connector:  (M,) bool lane ``rows[m]`` is a junction CONNECTOR.
+      rows:       (M,) int32 the lanes tested (-1 padded).
+      overflow:   () bool more lanes could hold the ego than were tested.
+    """
+
+    multi_lane: jnp.ndarray
+    centre_in: jnp.ndarray
+    rear_in: jnp.ndarray
+    tangent: jnp.ndarray
+    connector: jnp.ndarray
+    rows: jnp.ndarray
+    overflow: jnp.ndarray
+
+
+def ego_lanes(ego: EgoState, ego_lw, rear_offset, boxes, map_data: MapData) -> EgoLanes:
+    """``EgoLanes`` of the ego box this tick.
+
+    Args:
+      ego: the ego after the step.  ego_lw: (2,) m.  rear_offset: () m from
+        the rear axle to the box centre.
+      boxes: (L, 4) ``lane_boxes(map_data.lane_polygons, half-diagonal)``.
+      map_data: ``MapData`` (lane_polygons, lanes, lane_type).
+    """
+    fwd = jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)])
+    corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
+    pts = jnp.concatenate([corners, ego.xy[None], (ego.xy - rear_offset * fwd)[None]])  # (6, 2)
+    hits = lane_hits(pts, ego.xy, boxes, map_data.lane_polygons)
+    safe = jnp.maximum(hits.rows, 0)
+    lanes = map_data.lanes
+    _, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lanes.xy[safe],
+                                                                         lanes.point_valid[safe])
+    return EgoLanes(
+        multi_lane=~jnp.any(jnp.all(hits.inside[:4], axis=0)),
+        centre_in=hits.inside[4],
+        rear_in=hits.inside[5],
+        tangent=jnp.stack([jnp.cos(heading), jnp.sin(heading)], axis=-1),
+        connector=(map_data.lane_type[safe] == LaneType.CONNECTOR) & (hits.rows >= 0),
+        rows=hits.rows,
+        overflow=hits.overflow,
+    )
 
 
 def logged_overlap_spans(tracks: Tracks, ego_index, ego_lw):

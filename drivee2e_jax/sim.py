@@ -106,6 +106,8 @@ class SimContext:
       ego_lw:    (2,) float32 ego length and width, m.
       speed_limit: (R,) float32 speed limit along the route, m/s.
       obstacles: (O, ...) ``geometry.PolygonSAT`` of the static obstacles.
+      lane_boxes: (L, 4) float32 bounding box of each lane polygon grown by the
+                 ego's half-diagonal (``infractions.lane_boxes``).
       log_overlap: (A, 2) int32 [first, last] log steps during which the
                  LOGGED ego box already overlaps each agent's logged box
                  ([T, -1]: none); a contact with that agent is ignored
@@ -121,6 +123,7 @@ class SimContext:
     ego_lw: jnp.ndarray
     speed_limit: jnp.ndarray
     obstacles: geometry.PolygonSAT
+    lane_boxes: jnp.ndarray
     log_overlap: jnp.ndarray
     path_arc: jnp.ndarray | None = None
 
@@ -359,6 +362,7 @@ class Simulator:
             ego_lw=tr.size[i, :2],
             speed_limit=_route_speed_limits(scenario, lanes),
             obstacles=infractions.obstacle_sat(scenario.map),
+            lane_boxes=infractions.lane_boxes(scenario.map.lane_polygons, 0.5 * geometry.safe_norm(tr.size[i, :2])),
             log_overlap=infractions.logged_overlap_spans(tr, i, tr.size[i, :2]),
             path_arc=reactive.path_arc(tr) if self.config.agents == "idm" else None,
         )
@@ -458,9 +462,10 @@ class Simulator:
         )
         lane_xy, lane_pv, lane_ok, lane_w = _lane_rows(scenario, state.ctx.lanes)
         off, offset = infractions.lane_status(ego, lane_xy, lane_pv, lane_ok, lane_w)
-        multi_lane, _ = infractions.lane_footprint(ego, lw, lane_xy, lane_pv, lane_ok, lane_w)
-        excess = infractions.drivable_excess(ego, lw, scenario.map)
         rear_offset = getattr(self.config.dynamics, "lr", 0.0)
+        lanes = infractions.ego_lanes(ego, lw, rear_offset, state.ctx.lane_boxes, scenario.map)
+        multi_lane = lanes.multi_lane
+        excess = infractions.drivable_excess(ego, lw, scenario.map)
         kind = infractions.collision_type(
             ego, lw, rear_offset, agents.xy[hit_row], agents.yaw[hit_row], tr.size[hit_row, :2],
             geometry.safe_norm(agents.vel[hit_row]),
@@ -487,6 +492,7 @@ class Simulator:
             collision_type=kind,
             at_fault=hit & infractions.at_fault(kind, multi_lane, excess),
             multi_lane=multi_lane,
+            lanes_overflow=lanes.overflow,
             drivable_excess_m=excess,
             speed_limit=state.ctx.speed_limit[ep.route_index(state.episode)],
         )
@@ -494,16 +500,14 @@ class Simulator:
         if preset not in ("nuplan", "navsim"):
             return facts
         wheelbase = getattr(self.config.dynamics, "wheelbase", nuplan.DEFAULT_WHEELBASE)
-        lane_type = scenario.map.lane_type[jnp.maximum(state.ctx.lanes, 0)]
         if preset == "navsim":
             return facts.replace(navsim=navsim.tick(
-                ego, lw, agents, tr.size, near, near_ok, lane_xy, lane_pv, lane_ok, lane_type, lane_w,
-                multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase))
+                ego, lw, agents, tr.size, near, near_ok, lanes.centre_in, lanes.rear_in, lanes.tangent,
+                lanes.connector, multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase))
         # nuPlan looks sideways for TTC between lanes, off the drivable area and in the junction.
-        wide = (multi_lane | (excess > 0.0)
-                | navsim.in_junction(ego.xy, lane_xy, lane_pv, lane_ok, lane_type, lane_w))
-        return facts.replace(nuplan=nuplan.tick(state.ego.xy, ego, lw, agents, tr.size, near, near_ok, lane_xy,
-                                                lane_pv, lane_ok, lane_w, wide_view=wide, wheelbase=wheelbase))
+        wide = multi_lane | (excess > 0.0) | jnp.any(lanes.centre_in & lanes.connector)
+        return facts.replace(nuplan=nuplan.tick(state.ego.xy, ego, lw, agents, tr.size, near, near_ok,
+                                                lanes.centre_in, lanes.tangent, wide_view=wide, wheelbase=wheelbase))
 
 
 def sanitize_controls(c: Controls) -> tuple[Controls, jnp.ndarray]:

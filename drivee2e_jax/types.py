@@ -12,7 +12,7 @@ Symbols used in shapes:
 
 * ``A`` agents (the ego is one of them, at ``Scenario.ego_index``)
 * ``T`` log steps (``Scenario.dt_log`` apart, starting at t = 0)
-* ``L`` lanes, ``N`` points per polyline
+* ``L`` lanes, ``N`` points per polyline, ``P`` vertices per lane polygon
 * ``E`` lane boundaries / road edges
 * ``C`` crosswalks, ``V`` polygon vertices
 * ``S`` stop lines, ``G`` drivable-area polygons, ``O`` static obstacles
@@ -221,6 +221,8 @@ class MapData:
       drivable:         Polylines (G, V) drivable-area polygons.
       obstacles:        Polylines (O, V) static obstacle footprints.
       obstacle_height:  (O,) float32, m.
+      lane_polygons:    Polylines (L, P) each lane's area, counter-clockwise
+                        (``scenario.drivable.lane_polygon``).
       drivable_edges:   (D, 4) float32 [ax, ay, bx, by] edges of the boundary of
                         the drivable AREA (the union of ``drivable``, or of the
                         lane areas when the map has no drivable polygons), m,
@@ -246,6 +248,7 @@ class MapData:
     drivable: Polylines
     obstacles: Polylines
     obstacle_height: Array
+    lane_polygons: Polylines
     drivable_edges: Array
     drivable_edges_valid: Array
     drivable_source: Array

@@ -18,6 +18,7 @@ from drivee2e_jax.policy import load_policy, resolve_policy_path
 from drivee2e_jax.records import TrackRecord
 from drivee2e_jax.types import CollisionType as CT
 from drivee2e_jax.types import Marking, Tracks
+from tests.helpers import lanes as lane_helpers
 from tests.helpers import sim_scenarios as ss
 
 LW = jnp.array([4.6, 2.0])
@@ -268,43 +269,46 @@ def test_at_fault_truth_table():
 
 # Straight two-lane road along +x: eastbound centre y = -1.75, westbound y = +1.75 (drawn the other way),
 # both 3.5 m wide; the road spans y in [-3.5, 3.5]. Ego box 4.6 x 2.0 m (half 2.3 x 1.0).
-_ROAD = _lines(np.array([[-50.0, -1.75], [0.0, -1.75], [50.0, -1.75]]), np.array([[50.0, 1.75], [-50.0, 1.75]]))
-_footprint = jax.jit(inf.lane_footprint)
+_ROAD = [np.array([[-50.0, -1.75], [0.0, -1.75], [50.0, -1.75]]), np.array([[50.0, 1.75], [-50.0, 1.75]])]
 
 
-def _fp(x, y, yaw, lane_valid=(True, True)):
-    multi, excess = _footprint(_ego(x, y, yaw), LW, *_ROAD, jnp.asarray(lane_valid), jnp.array([3.5, 3.5]))
-    return bool(multi), float(excess)
+def _multi(x, y, yaw, lane_valid=(True, True)):
+    el = lane_helpers.ego_lanes(_ego(x, y, yaw), LW, lane_helpers.lane_map(_ROAD, valid=np.asarray(lane_valid)))
+    return bool(el.multi_lane)
 
 
-def test_lane_footprint_centred_in_a_lane():
-    assert _fp(0.0, -1.75, 0.0) == (False, 0.0)  # corners at |dy| = 1.0 <= 1.75
-    assert _fp(10.0, 1.75, np.pi) == (False, 0.0)  # westbound lane, heading west
+def test_multi_lane_centred_in_a_lane():
+    assert not _multi(0.0, -1.75, 0.0)  # corners at |dy| = 1.0 <= 1.75
+    assert not _multi(10.0, 1.75, np.pi)  # westbound lane, heading west
 
 
-def test_lane_footprint_straddling_the_centre_line_is_multi_lane():
-    # Corners at y = +-1: each inside one lane, no lane holds all four; nothing off the road.
-    assert _fp(0.0, 0.0, 0.0) == (True, 0.0)
+def test_multi_lane_straddling_the_centre_line():
+    # Corners at y = +-1: each inside one lane, no lane holds all four.
+    assert _multi(0.0, 0.0, 0.0)
 
 
-def test_lane_footprint_outside_the_road_edge():
-    # Centre on the road edge y = -3.5: right corners at y = -4.5, 1 m beyond the eastbound lane's edge.
-    multi, excess = _fp(0.0, -3.5, 0.0)
-    assert multi and excess == pytest.approx(1.0, abs=1e-5)
+def test_multi_lane_yawed_past_the_lane_edge():
     # Yawed 0.5 rad in the eastbound lane: the farthest corner is 2.3 sin 0.5 + 1.0 cos 0.5 = 1.980 m
-    # from the centre line, 0.230 m past the road edge (the opposite corner is in the westbound lane).
-    multi, excess = _fp(0.0, -1.75, 0.5)
-    assert multi and excess == pytest.approx(2.3 * np.sin(0.5) + np.cos(0.5) - 1.75, abs=1e-4)
-    # At 0.3 rad it stays inside (1.635 m < 1.75 m).
-    assert _fp(0.0, -1.75, 0.3) == (False, 0.0)
+    # from the centre line (> 1.75): no lane holds all four. At 0.3 rad it stays inside (1.635 m).
+    assert _multi(0.0, -1.75, 0.5)
+    assert not _multi(0.0, -1.75, 0.3)
 
 
-def test_lane_footprint_ignores_invalid_lanes():
-    # Only the westbound lane valid: a car centred in the eastbound lane is 2.5 m + 0.75 m outside it.
-    multi, excess = _fp(0.0, -1.75, 0.0, lane_valid=(False, True))
-    assert multi and excess == pytest.approx(abs(-2.75 - 1.75) - 1.75, abs=1e-5)
+def test_multi_lane_ignores_invalid_lanes():
+    assert _multi(0.0, -1.75, 0.0, lane_valid=(False, True))
+    assert _multi(0.0, -1.75, 0.0, lane_valid=(False, False))  # no lane holds the ego at all
 
 
-def test_lane_footprint_without_any_lane_is_far_off_road():
-    # No valid lane: every corner is outside "every lane" -- reported as 1e3 m rather than inf.
-    assert _fp(0.0, -1.75, 0.0, lane_valid=(False, False)) == (True, 1e3)
+def test_multi_lane_on_a_curved_connector():
+    # A quarter circle of radius 12 m: a car on the arc, heading along it, lies in the lane;
+    # the straight-over-a-car-length approximation put its front corners 0.3 m off.
+    a = np.linspace(0.0, np.pi / 2, 40)
+    arc = np.stack([12.0 * np.sin(a), 12.0 - 12.0 * np.cos(a)], 1)
+    lmap = lane_helpers.lane_map([arc], widths=3.0, types=[lane_helpers.CONNECTOR])
+    th = np.pi / 4
+    on = _ego(12.0 * np.sin(th), 12.0 - 12.0 * np.cos(th), th)
+    el = lane_helpers.ego_lanes(on, LW, lmap)
+    assert not bool(el.multi_lane) and bool(el.centre_in[0]) and bool(el.connector[0])
+    np.testing.assert_allclose(np.asarray(el.tangent[0]), [np.cos(th), np.sin(th)], atol=0.05)
+    corners = np.asarray(geo.box_corners(on.xy, on.yaw, LW[0], LW[1]))
+    assert np.all(np.abs(np.hypot(corners[:, 0], corners[:, 1] - 12.0) - 12.0) < 1.5)  # inside by geometry too

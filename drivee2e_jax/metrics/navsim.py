@@ -87,7 +87,7 @@ from scipy.signal import savgol_filter
 from drivee2e_jax import geometry
 from drivee2e_jax.dynamics import BicycleParams
 from drivee2e_jax.replay import AgentStates
-from drivee2e_jax.types import EgoState, LaneType
+from drivee2e_jax.types import EgoState
 
 # --- PDMScorerConfig (S) -----------------------------------------------------
 #: EPDMS weights (S ``PDMScorerConfig``; pdm_scorer.yaml).
@@ -166,23 +166,6 @@ class NavsimTick:
     oncoming: jnp.ndarray
 
 
-def _lane_membership(p, yaw, lane_xy, lane_pv, lane_ok, lane_width):
-    """(M,) bool the point ``p (2,)`` lies within width/2 of each lane centre,
-    and (M,) bool each lane runs within ``ONCOMING_ALIGN_MAX`` of ``yaw``."""
-    dist, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(p, lane_xy, lane_pv)
-    inside = lane_ok & (dist <= 0.5 * lane_width)
-    aligned = jnp.abs(geometry.wrap_angle(heading - yaw)) < ONCOMING_ALIGN_MAX
-    return inside, aligned
-
-
-def in_junction(p, lane_xy, lane_pv, lane_ok, lane_type, lane_width):
-    """() bool: the point ``p (2,)`` lies on a CONNECTOR lane (within width/2
-    of its centre): "in the junction" for NAVSIM's DDC / LK and, in the
-    simulator, nuPlan's TTC view. Lanes as in ``tick``."""
-    inside, _ = _lane_membership(p, 0.0, lane_xy, lane_pv, lane_ok, lane_width)
-    return jnp.any(inside & (lane_type == LaneType.CONNECTOR))
-
-
 def ttc_violation(ego: EgoState, ego_lw, a_xy, a_yaw, a_vel, a_lw, a_ok, lax_zone, wheelbase: float):
     """() bool NAVSIM's time-to-collision failure at this tick.
 
@@ -231,11 +214,10 @@ def tick(
     agent_size,
     near,
     near_ok,
-    lane_xy,
-    lane_pv,
-    lane_ok,
-    lane_type,
-    lane_width,
+    centre_in,
+    rear_in,
+    tangent,
+    connector,
     multi_lane=False,
     off_drivable=False,
     wheelbase: float = BicycleParams().wheelbase,
@@ -247,19 +229,17 @@ def tick(
       agents: AgentStates (A,) at this tick (the ego's own row invalid).
       agent_size: (A, 3) m. near, near_ok: (K,) rows from
         ``infractions.nearest_rows`` and their validity (K <= 16).
-      lane_xy (M, P, 2), lane_pv (M, P), lane_ok (M,), lane_type (M,) int32
-        ``LaneType``, lane_width (M,) m: candidate lanes (e.g. near the route).
+      centre_in, rear_in (M,) bool, tangent (M, 2), connector (M,) bool: the
+        tested lanes of ``infractions.EgoLanes`` (which lane polygons hold the
+        ego centre and its rear axle, their unit direction at the centre,
+        which are junction connectors).
       multi_lane, off_drivable: () bool this tick's ``StepFacts.multi_lane``
         and ``StepFacts.drivable_excess_m > 0`` (TTC's lax zone).
       wheelbase: m.
     """
-    fwd = jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)])
-    rear = ego.xy - 0.5 * wheelbase * fwd
-    connector = lane_type == LaneType.CONNECTOR
-    inside, aligned = _lane_membership(ego.xy, ego.yaw, lane_xy, lane_pv, lane_ok, lane_width)
-    rear_inside, _ = _lane_membership(rear, ego.yaw, lane_xy, lane_pv, lane_ok, lane_width)
-    junction = jnp.any(inside & connector)
-    lax_zone = jnp.asarray(multi_lane) | jnp.asarray(off_drivable) | jnp.any(rear_inside & connector)
+    aligned = tangent @ jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)]) > math.cos(ONCOMING_ALIGN_MAX)
+    junction = jnp.any(centre_in & connector)
+    lax_zone = jnp.asarray(multi_lane) | jnp.asarray(off_drivable) | jnp.any(rear_in & connector)
     ttc = ttc_violation(
         ego,
         ego_lw,
@@ -271,7 +251,7 @@ def tick(
         lax_zone,
         wheelbase,
     )
-    return NavsimTick(ttc_violation=ttc, in_junction=junction, oncoming=~jnp.any(inside & aligned))
+    return NavsimTick(ttc_violation=ttc, in_junction=junction, oncoming=~jnp.any(centre_in & aligned))
 
 
 # =============================================================================

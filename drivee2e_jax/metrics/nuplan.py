@@ -231,36 +231,32 @@ def time_to_collision(ego: EgoState, ego_lw: Array, xy: Array, yaw: Array, speed
     return jnp.where(ego.speed > TTC_STOPPED_SPEED, ttc, jnp.inf).astype(jnp.float32)
 
 
-def oncoming_travel(prev_xy: Array, ego: EgoState, lane_xy: Array, lane_pv: Array, lane_ok: Array,
-                    lane_w: Array) -> Array:
+def oncoming_travel(prev_xy: Array, ego: EgoState, centre_in: Array, tangent: Array) -> Array:
     """() float32 ego travel this tick against its lane's direction, m (>= 0).
 
     ``DrivingDirectionComplianceStatistics._extract_metric``
     (driving_direction_compliance.py) measures the ego centre's progress
-    along the baseline of the lane it is in; negative progress is driving
-    against the lane. Here: a lane holds the ego if its centre is within
-    width / 2 of the centreline; if a lane running the ego's way (tangent .
-    heading >= 0) holds it, it is not oncoming (0). Otherwise the nearest
+    along the baseline of the lane (or connector) it is in; negative progress
+    is driving against the lane. Here: the lanes whose POLYGON holds the ego
+    centre (``infractions.EgoLanes``); if one of them runs the ego's way
+    (tangent . heading >= 0), it is not oncoming (0); otherwise the first
     holding lane gives ``max(0, -(xy - prev_xy) . tangent)``.
 
     Args:
       prev_xy: (2,) ego centre before the step, m.  ego: EgoState after it.
-      lane_xy: (M, P, 2) centrelines.  lane_pv: (M, P) bool.  lane_ok: (M,) bool.
-      lane_w: (M,) width, m.
+      centre_in: (M,) bool the lane polygon holds the ego centre.
+      tangent: (M, 2) unit lane direction at the ego centre.
     """
-    dist, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lane_xy, lane_pv)
-    holds = lane_ok & (dist <= 0.5 * lane_w)
-    tangent = _heading_vec(heading)  # (M, 2)
     with_ego = tangent @ _heading_vec(ego.yaw) >= 0.0
-    against = holds & ~with_ego
-    j = jnp.argmin(jnp.where(against, dist, jnp.inf))
+    against = centre_in & ~with_ego
+    j = jnp.argmax(against)
     back = -jnp.dot(ego.xy - prev_xy, tangent[j])
-    on_wrong = against.any() & ~(holds & with_ego).any()
+    on_wrong = against.any() & ~(centre_in & with_ego).any()
     return jnp.where(on_wrong, jnp.maximum(back, 0.0), 0.0).astype(jnp.float32)
 
 
 def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agent_size: Array,
-         near: Array, near_ok: Array, lane_xy: Array, lane_pv: Array, lane_ok: Array, lane_w: Array,
+         near: Array, near_ok: Array, centre_in: Array, tangent: Array,
          *, wide_view: Array | bool = False, wheelbase: float = DEFAULT_WHEELBASE) -> NuplanTick:
     """nuPlan facts of one tick (pure JAX, one scenario).
 
@@ -272,8 +268,8 @@ def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agen
       agent_size: (A, 3) length, width, height, m.
       near, near_ok: (K,) rows of the nearest agents (``infractions.nearest_rows``)
         and their validity; K <= 16.
-      lane_xy, lane_pv, lane_ok, lane_w: (M, P, 2), (M, P), (M,), (M,) lanes
-        near the ego (centrelines in driving direction, widths in m).
+      centre_in, tangent: (M,) bool, (M, 2): the lanes whose polygon holds the
+        ego centre and their unit direction there (``infractions.EgoLanes``).
       wide_view: () bool, the ego is in several lanes / off the lanes / in a
         junction: lateral tracks count for TTC (``ttc_relevant``).
       wheelbase: m, for the rear axle (``dynamics.BicycleParams.wheelbase``).
@@ -289,7 +285,7 @@ def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agen
     relevant = ttc_relevant(ego, xy, ok, jnp.asarray(wide_view), wheelbase) & ~touching
     return NuplanTick(
         ttc_s=time_to_collision(ego, ego_lw, xy, yaw, speed, lw, relevant),
-        oncoming_m=oncoming_travel(prev_xy, ego, lane_xy, lane_pv, lane_ok, lane_w),
+        oncoming_m=oncoming_travel(prev_xy, ego, centre_in, tangent),
     )
 
 

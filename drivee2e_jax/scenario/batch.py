@@ -123,6 +123,7 @@ def _used(f: dict[str, np.ndarray], meta: SuiteMeta) -> dict[str, np.ndarray]:
         "route": last(f["route.valid"], 1),
         "successors": last(f["map.lane_successors"] >= 0, 2),
         "drivable_edges": last(f["map.drivable_edges_valid"], 1),
+        "lane_vertices": last(f["map.lane_polygons.point_valid"], 2),
     }
 
 

@@ -33,7 +33,10 @@ from shapely.geometry import LineString, Polygon
 
 from drivee2e_jax.records import LaneRecord, MapRecord
 
-__all__ = ["DrivableSource", "drivable_edges", "drivable_union", "lane_area"]
+__all__ = ["DrivableSource", "drivable_edges", "drivable_union", "lane_area", "lane_polygon"]
+
+#: At most this many vertices per packed lane polygon (``lane_polygon``).
+LANE_POLYGON_MAX_VERTICES = 64
 
 #: Vertices closer than this to the line through their neighbours are dropped
 #: from the union's rings (m): exact to well below the 0.3 m / 0 m thresholds.
@@ -53,6 +56,27 @@ def lane_area(lane: LaneRecord):
     (flat ends)."""
     line = LineString(np.asarray(lane.centerline, float).reshape(-1, 2))
     return line.buffer(0.5 * float(lane.width), cap_style="flat", join_style="mitre", mitre_limit=4.0)
+
+
+def lane_polygon(lane: LaneRecord) -> np.ndarray:
+    """(V, 2) float64 the lane's area as one simple counter-clockwise polygon
+    (``lane_area``; no repeated closing vertex), m; simplified on the host
+    until it has at most ``LANE_POLYGON_MAX_VERTICES`` vertices (tolerance
+    doubling from 1 mm). Empty (0, 2) for a lane without area."""
+    cl = np.asarray(lane.centerline, float).reshape(-1, 2)
+    if len(cl) < 2 or not lane.width > 0:
+        return np.zeros((0, 2))
+    geom = shapely.make_valid(lane_area(lane))
+    parts = [g for g in shapely.get_parts(geom) if isinstance(g, Polygon) and not g.is_empty]
+    if not parts:
+        return np.zeros((0, 2))
+    poly = shapely.geometry.polygon.orient(max(parts, key=lambda g: g.area), 1.0)
+    tol = SIMPLIFY_TOLERANCE_M
+    out = poly
+    while len(out.exterior.coords) - 1 > LANE_POLYGON_MAX_VERTICES:
+        out = poly.simplify(tol, preserve_topology=True)
+        tol *= 2.0
+    return np.asarray(out.exterior.coords, float)[:-1]
 
 
 def drivable_union(m: MapRecord):

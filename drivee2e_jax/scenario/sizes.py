@@ -22,7 +22,7 @@ import numpy as np
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import MapRecord, ScenarioRecord
-from drivee2e_jax.scenario.drivable import drivable_edges
+from drivee2e_jax.scenario.drivable import drivable_edges, lane_polygon
 from drivee2e_jax.scenario.routes import densify_route
 
 __all__ = ["PackSizes", "LEAVES", "alloc_leaves", "record_needs", "map_needs", "map_of"]
@@ -43,7 +43,8 @@ class PackSizes:
       apart because the simulator tests every obstacle against the ego each
       step and footprints are small), route (R: 1 m route points),
       successors (K), drivable_edges (D: edges of the drivable area's
-      boundary, ``scenario.drivable``).
+      boundary, ``scenario.drivable``), lane_vertices (P: vertices of a lane's
+      area polygon, ``scenario.drivable.lane_polygon``).
     """
 
     agents: int
@@ -60,12 +61,13 @@ class PackSizes:
     successors: int
     obstacle_vertices: int = 4
     drivable_edges: int = 16
+    lane_vertices: int = 8
 
     #: ``fit`` rounds each maximum up to a multiple of this.
     MULTIPLE: typing.ClassVar[dict[str, int]] = dict(
         agents=8, steps=8, lanes=8, points=4, boundaries=8, crosswalks=4, vertices=4,
         stop_lines=4, drivable=4, obstacles=4, route=16, successors=4, obstacle_vertices=4,
-        drivable_edges=16,
+        drivable_edges=16, lane_vertices=8,
     )
 
     def __post_init__(self):
@@ -151,6 +153,7 @@ LEAVES: dict[str, tuple[tuple, Any, Any]] = {
     **_poly("map.drivable", "drivable", "vertices"),
     **_poly("map.obstacles", "obstacles", "obstacle_vertices"),
     "map.obstacle_height": (("obstacles",), _F, 0),
+    **_poly("map.lane_polygons", "lanes", "lane_vertices"),
     "map.drivable_edges": (("drivable_edges", 4), _F, 0),
     "map.drivable_edges_valid": (("drivable_edges",), _B, False),
     "map.drivable_source": ((), _I, 0),
@@ -213,6 +216,7 @@ def map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         "obstacle_vertices": obstacle_verts,
         "successors": most(m.lanes, lambda ln: len(ln.successors), lambda i: f"{where} lanes[{i}].successors"),
         "drivable_edges": (len(edges), f"{where} drivable area boundary edges"),
+        "lane_vertices": most(m.lanes, lambda ln: len(lane_polygon(ln)), lambda i: f"{where} lanes[{i}] area polygon"),
     }
 
 

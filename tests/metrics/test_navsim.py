@@ -14,7 +14,8 @@ import pytest
 
 from drivee2e_jax.metrics import navsim
 from drivee2e_jax.replay import AgentStates
-from drivee2e_jax.types import EgoState, LaneType
+from drivee2e_jax.types import EgoState
+from tests.helpers import lanes as lane_helpers
 from tests.helpers.navsim_cases import straight_log, straight_scenario
 
 LW = jnp.array([4.0, 2.0])
@@ -88,18 +89,17 @@ def test_ttc_stopped_ego_and_direction_rules():
 
 
 def _lanes():
-    x = jnp.arange(-10.0, 31.0, 2.0)
-    lane0 = jnp.stack([x, jnp.zeros_like(x)], -1)  # DRIVING along +x at y = 0
-    lane1 = jnp.stack([x, jnp.full_like(x, 10.0)], -1)  # CONNECTOR along +x at y = 10
-    xy = jnp.stack([lane0, lane1])
-    pv = jnp.ones(xy.shape[:2], bool)
-    types = jnp.array([LaneType.DRIVING, LaneType.CONNECTOR], jnp.int32)
-    return xy, pv, jnp.array([True, True]), types, jnp.array([3.5, 3.5])
+    x = np.arange(-10.0, 31.0, 2.0)
+    lane0 = np.stack([x, np.zeros_like(x)], -1)  # DRIVING along +x at y = 0
+    lane1 = np.stack([x, np.full_like(x, 10.0)], -1)  # CONNECTOR along +x at y = 10
+    return lane_helpers.lane_map([lane0, lane1], types=[lane_helpers.DRIVING, lane_helpers.CONNECTOR])
 
 
 def _tick(ego, agent_xy=(100.0, 100.0)):
     agents = AgentStates(xy=jnp.array([agent_xy]), yaw=jnp.zeros(1), vel=jnp.zeros((1, 2)), valid=jnp.array([True]))
-    return navsim.tick(ego, LW, agents, jnp.array([[4.0, 2.0, 1.5]]), jnp.array([0]), jnp.array([True]), *_lanes())
+    el = lane_helpers.ego_lanes(ego, LW, _lanes(), rear_offset=1.45)
+    return navsim.tick(ego, LW, agents, jnp.array([[4.0, 2.0, 1.5]]), jnp.array([0]), jnp.array([True]),
+                       el.centre_in, el.rear_in, el.tangent, el.connector)
 
 
 def test_tick_junction_and_oncoming():

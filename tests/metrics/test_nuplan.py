@@ -14,6 +14,7 @@ import pytest
 
 from drivee2e_jax.metrics import nuplan
 from drivee2e_jax.types import Category
+from tests.helpers import lanes as lane_helpers
 from tests.helpers.nuplan_cases import (
     agents,
     ego_state,
@@ -24,13 +25,12 @@ from tests.helpers.nuplan_cases import (
 )
 
 EGO_LW = (4.0, 2.0)
-NO_LANES = straight_lanes([(100.0, 1)])
+NO_LANE = (jnp.zeros(1, bool), jnp.array([[1.0, 0.0]]))  # no lane polygon holds the ego
 
 
 @jax.jit
 def _tick(prev_xy, ego, ag, size, near, near_ok, wide):
-    xy, pv, ok, w = NO_LANES
-    return nuplan.tick(prev_xy, ego, jnp.asarray(EGO_LW, jnp.float32), ag, size, near, near_ok, xy, pv, ok, w,
+    return nuplan.tick(prev_xy, ego, jnp.asarray(EGO_LW, jnp.float32), ag, size, near, near_ok, *NO_LANE,
                        wide_view=wide)
 
 
@@ -113,10 +113,13 @@ def test_ttc_score_rules():
 
 
 def test_oncoming_travel_on_lanes():
-    lanes = straight_lanes([(0.0, 1), (3.5, -1)])
+    xy, _, _, _ = straight_lanes([(0.0, 1), (3.5, -1)])
+    lmap = lane_helpers.lane_map(list(np.asarray(xy)))
 
     def onc(x, y, yaw, px, py):
-        return float(nuplan.oncoming_travel(jnp.array([px, py]), ego_state(x, y, yaw, 5.0), *lanes))
+        ego = ego_state(x, y, yaw, 5.0)
+        el = lane_helpers.ego_lanes(ego, EGO_LW, lmap)
+        return float(nuplan.oncoming_travel(jnp.array([px, py]), ego, el.centre_in, el.tangent))
 
     assert onc(0.0, 0.0, math.pi, 1.0, 0.0) == pytest.approx(1.0)  # wrong way on the +x lane
     assert onc(1.0, 0.0, 0.0, 0.0, 0.0) == 0.0  # with the lane
