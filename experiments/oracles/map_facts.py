@@ -4,8 +4,9 @@ Re-simulates every episode of a ``drivee2e bench`` results folder
 (``eval.traces.iter_traces``, no sensors) and recomputes, on the host with
 shapely, what the compiled step judged from the map: how far the ego's
 corners are outside the union of the drivable polygons (nuPlan DAC at
->= 0.3 m, NAVSIM DAC at > 0) and whether a single lane polygon holds the ego
-(``multi_lane``). Prints, per policy, the episode agreement of both DACs,
+>= 0.3 m, NAVSIM DAC at > 0), whether a single lane polygon holds the ego
+(``multi_lane``) and nuPlan's driving-direction compliance (travel against
+the lane polygon holding the ego centre, 1 s windows). Prints, per policy, the episode agreement of both DACs,
 the per-instant agreement, and every disagreeing episode.
 
     python experiments/oracles/map_facts.py results/twin15-val
@@ -57,8 +58,14 @@ def summarize(policy: str, per_episode: dict) -> dict:
         s[f"{key}_sim_fails"] = int(sum(r[key][0] for r in rows))
         s[f"{key}_oracle_fails"] = int(sum(r[key][1] for r in rows))
         s[f"{key}_disagree"] = [sid for sid, r in per_episode.items() if r[key][0] != r[key][1]]
+    dirs = [r["direction"] for r in rows if "direction" in r]
+    s["direction_agree"] = float(np.mean([a == b for a, b in dirs])) if dirs else None
+    s["direction_disagree"] = [sid + (" (borderline)" if r["direction_borderline"] else "")
+                               for sid, r in per_episode.items()
+                               if "direction" in r and r["direction"][0] != r["direction"][1]]
     s["excess_instant_agree"] = float(np.mean([r["excess_agree"] for r in rows])) if n else 1.0
     s["multi_lane_instant_agree"] = float(np.mean([r["multi_lane_agree"] for r in rows])) if n else 1.0
+    s["lanes_overflow_steps"] = int(sum(r["lanes_overflow_steps"] for r in rows))
     s["worst_excess_gap_m"] = max((abs(r["excess_max"][0] - r["excess_max"][1]) for r in rows), default=0.0)
     return s
 
@@ -83,8 +90,13 @@ def main(argv=None) -> int:
             print(f"  {label:22s} agree {100 * s[f'{key}_agree']:6.2f} %   fails: sim {s[f'{key}_sim_fails']:3d}, "
                   f"oracle {s[f'{key}_oracle_fails']:3d}   disagree: {', '.join(s[f'{key}_disagree']) or '-'}")
             ok &= s[f"{key}_agree"] >= a.min_agree
+        if s["direction_agree"] is not None:
+            print(f"  nuPlan driving direction agree {100 * s['direction_agree']:6.2f} %   disagree: "
+                  f"{', '.join(s['direction_disagree']) or '-'}")
+            ok &= s["direction_agree"] >= a.min_agree
         print(f"  per instant: excess agree {100 * s['excess_instant_agree']:.2f} %, multi-lane agree "
-              f"{100 * s['multi_lane_instant_agree']:.2f} %, worst episode max-excess gap {s['worst_excess_gap_m']:.3f} m")
+              f"{100 * s['multi_lane_instant_agree']:.2f} %, worst episode max-excess gap {s['worst_excess_gap_m']:.3f} m, "
+              f"steps with more lanes than tested: {s['lanes_overflow_steps']}")
     if a.json:
         Path(a.json).write_text(json.dumps(dump, indent=1))
     return 0 if ok else 1

@@ -3,8 +3,9 @@
 A ``drivee2e bench --preset nuplan`` run of the expert and constant velocity
 on the first twin15 val scenarios, re-simulated (``eval.traces``), against
 ``tests/helpers/map_oracle.py`` (shapely on the suite's own drivable polygons):
-the drivable excess at every instant, and nuPlan's / NAVSIM's DAC per
-episode. Constant velocity drives straight where its route turns, so some of
+the drivable excess at every instant, nuPlan's / NAVSIM's DAC and nuPlan's
+driving-direction compliance per episode, and ``multi_lane`` at (nearly)
+every instant. Constant velocity drives straight where its route turns, so some of
 its episodes leave the road by far more than 0.3 m: the comparison is not
 vacuous (asserted).
 """
@@ -40,6 +41,11 @@ def test_drivable_area_matches_shapely(run, policy):
         assert cmp["dac_nuplan"][0] == cmp["dac_nuplan"][1], (tr.scenario_id, cmp)
         assert cmp["dac_navsim"][0] == cmp["dac_navsim"][1], (tr.scenario_id, cmp)
         assert cmp["nuplan_drivable_area_compliance"] == (0.0 if cmp["dac_nuplan"][1] else 1.0)
+        # Lane polygons: float32 point-in-polygon against shapely's covers, 1 mm simplification.
+        assert cmp["multi_lane_agree"] >= 0.98, (tr.scenario_id, cmp)
+        # A worst 1 s window within 5 cm of a threshold may tip either way (see map_oracle).
+        assert cmp["direction"][0] == cmp["direction"][1] or cmp["direction_borderline"], (tr.scenario_id, cmp)
+        assert cmp["lanes_overflow_steps"] == 0
         worst = max(worst, cmp["excess_max"][1])
     if policy == "constant_velocity":
         assert worst > map_oracle.NUPLAN_DAC_M  # it leaves the road somewhere: the check can fail

@@ -10,7 +10,10 @@ boundaries or centreline and width) and the re-simulated ego poses of an
   nuPlan's ``drivable_area_compliance`` (fails at >= 0.3 m) and NAVSIM's DAC
   (fails at > 0);
 * ``multi_lane``: no single lane polygon covers all four corners (nuPlan's
-  "ego in multiple lanes").
+  "ego in multiple lanes");
+* ``oncoming``: the ego centre's travel against the lane holding it, when no
+  lane holding it runs its way (nuPlan's ``driving_direction_compliance``
+  input), and that metric's score over 1 s windows.
 
 ``compare`` lines these up with what the step produced (the trace's
 ``facts.*`` timelines and the row's DAC columns). Used by
@@ -21,13 +24,16 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Polygon
+from shapely.geometry import LineString, Point, Polygon
 
 #: nuPlan's drivable_area_compliance ``max_violation_threshold``, m (from its
 #: config, written here again so the oracle does not read the module under test).
 NUPLAN_DAC_M = 0.3
 #: Per-instant agreement of the excess, m (float32 corners against float64).
 EXCESS_TOL_M = 0.01
+#: nuPlan driving_direction_compliance: thresholds (m) and window (s), from its config.
+DIRECTION_M = (2.0, 6.0)
+DIRECTION_WINDOW_S = 1.0
 
 
 def lane_polygon(lane) -> Polygon:
@@ -75,12 +81,54 @@ def multi_lane(lanes: list[Polygon], corners: np.ndarray) -> np.ndarray:
     return ~held.any(axis=0)
 
 
+def oncoming_travel(xy, yaw, lanes: list, lines: list) -> np.ndarray:
+    """(n,) m travel of the ego centre against the lane holding it, for each
+    step xy[k-1] -> xy[k] (k = 1..n): 0 unless a lane polygon holds xy[k] and
+    none of those holding it runs within 90 deg of the heading; then the
+    backward travel along the first holding lane's direction at that point."""
+    xy, yaw = np.asarray(xy, float), np.asarray(yaw, float)
+    out = np.zeros(len(xy) - 1)
+    for k in range(1, len(xy)):
+        p = Point(xy[k])
+        heading = np.array([np.cos(yaw[k]), np.sin(yaw[k])])
+        tangents = []
+        for lp, line in zip(lanes, lines):
+            if lp.covers(p):
+                s = line.project(p)
+                a, b = line.interpolate(max(s - 0.05, 0.0)), line.interpolate(min(s + 0.05, line.length))
+                t = np.array([b.x - a.x, b.y - a.y])
+                tangents.append(t / max(np.linalg.norm(t), 1e-9))
+        if tangents and not any(t @ heading >= 0 for t in tangents):
+            out[k - 1] = max(0.0, -float((xy[k] - xy[k - 1]) @ tangents[0]))
+    return out
+
+
+#: A worst window this close to a threshold (m) is borderline: the lane's
+#: direction at a point (float32 nearest segment vs a shapely chord) may tip it.
+DIRECTION_BORDER_M = 0.05
+
+
+def direction_compliance(oncoming: np.ndarray, dt: float) -> tuple[float, float]:
+    """nuPlan's ``DrivingDirectionComplianceStatistics``: the largest travel
+    against the lanes over any window of int(1 s / dt) + 1 samples:
+    < 2 m -> 1, < 6 m -> 0.5, else 0. Returns (score, that largest travel m)."""
+    n = int(round(DIRECTION_WINDOW_S / dt))
+    worst = max((oncoming[max(0, i - n): i + 1].sum() for i in range(len(oncoming))), default=0.0)
+    return (1.0 if worst < DIRECTION_M[0] else (0.5 if worst < DIRECTION_M[1] else 0.0)), float(worst)
+
+
 def episode_oracle(trace, map_record) -> dict:
     """Oracle facts of one trace at instants 1..n (the states after each active step)."""
     corners = ego_corners(trace.ego_xy[1:], trace.ego_yaw[1:], float(trace.ego_size[0]), float(trace.ego_size[1]))
     excess = corner_excess(drivable_area(map_record), corners)
-    lanes = [lane_polygon(ln) for ln in map_record.lanes if len(ln.centerline) >= 2]
-    return {"excess": excess, "multi_lane": multi_lane(lanes, corners),
+    records = [ln for ln in map_record.lanes if len(ln.centerline) >= 2]
+    lanes = [lane_polygon(ln) for ln in records]
+    lines = [LineString(np.asarray(ln.centerline, float)) for ln in records]
+    oncoming = oncoming_travel(trace.ego_xy, trace.ego_yaw, lanes, lines)
+    direction, worst = direction_compliance(oncoming, float(trace.dt))
+    return {"excess": excess, "multi_lane": multi_lane(lanes, corners), "oncoming": oncoming,
+            "direction": direction, "direction_borderline": bool(min(abs(worst - t) for t in DIRECTION_M)
+                                                                  < DIRECTION_BORDER_M),
             "dac_nuplan_fail": bool(np.any(excess >= NUPLAN_DAC_M)), "dac_navsim_fail": bool(np.any(excess > 0.0))}
 
 
@@ -105,8 +153,12 @@ def compare(trace, oracle: dict) -> dict:
         "excess_agree": float(np.mean(close | same_side)) if len(sim) else 1.0,
         "multi_lane_agree": float(np.mean(ml == oracle["multi_lane"])) if len(ml) else 1.0,
         "multi_lane_steps": (int(ml.sum()), int(oracle["multi_lane"].sum())),
+        "lanes_overflow_steps": int(np.sum(trace.timeline.get("facts.lanes_overflow", np.zeros(1))[1:])),
     }
     row = trace.row or {}
+    if row.get("nuplan_driving_direction_compliance") is not None:
+        out["direction"] = (float(row["nuplan_driving_direction_compliance"]), oracle["direction"])
+        out["direction_borderline"] = oracle["direction_borderline"]
     for col in ("nuplan_drivable_area_compliance", "navsim_dac"):
         if col in row and row[col] is not None:
             out[col] = float(row[col])
