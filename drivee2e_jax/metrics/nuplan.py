@@ -488,6 +488,32 @@ def ego_comfort_inputs(speed, accel, steer, yaw_rate, dt: float,
     return lon, np.zeros_like(lon), np.abs(a_r)
 
 
+def path_comfort_inputs(xy, yaw, dt: float, window: int = 9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Comfort inputs of a logged path that has no measured accelerations.
+
+    nuPlan reads a logged ego's accelerations from its IMU; a recorded path
+    (positions at ``dt``) has none, and differentiating positions step by
+    step turns centimetres of noise into m/s^2. This is a Savitzky-Golay
+    estimate (window ``window`` clipped to the path, order 3, second
+    derivative) of the acceleration vector, projected on the logged heading
+    (lon) and its normal (lat); the magnitude is their hypot (the IMU sees
+    both). A diagnostic reference for "is the log itself comfortable", not
+    a metric column.
+
+    Args: xy (n, 2) m, yaw (n,) rad, dt s.  Returns: (lon, lat, magnitude), each (n,) m/s^2.
+    """
+    xy = np.asarray(xy, np.float64)
+    yaw = np.asarray(yaw, np.float64)
+    w = min(window, len(xy) if len(xy) % 2 else len(xy) - 1)
+    if w <= 3:
+        z = np.zeros(len(xy))
+        return z, z, z
+    acc = savgol_filter(xy, w, 3, deriv=2, delta=dt, axis=0)
+    lon = acc[:, 0] * np.cos(yaw) + acc[:, 1] * np.sin(yaw)
+    lat = -acc[:, 0] * np.sin(yaw) + acc[:, 1] * np.cos(yaw)
+    return lon, lat, np.hypot(lon, lat)
+
+
 def comfort_signals(accel, lat_accel, yaw, t, accel_magnitude=None) -> dict[str, np.ndarray | None]:
     """nuPlan's six comfort signals (nuplan/planning/metrics/utils/state_extractors.py).
 
@@ -626,6 +652,7 @@ __all__ = [
     "direction_score",
     "drivable_score",
     "ego_comfort_inputs",
+    "path_comfort_inputs",
     "episode_columns",
     "oncoming_travel",
     "progress_ratio",
