@@ -57,9 +57,10 @@ LK    distance of centre to the route centreline   facts.lane_offset (nearest al
       > 0.5 m for ceil(2 s / 0.1 s) consecutive    centre) for ceil(2 s / dt) consecutive active
       non-intersection states                      steps; junction (connector) steps skipped
 HC    comfort bounds on 1.5 s human history +       bounds on the executed steps (no history
-      the 4 s proposal (states from the LQR sim)   padding): lon accel = StepLog.accel, lat
-                                                   accel = speed * yaw_rate, heading = yaw (box
-                                                   centre, not rear axle); < 4 steps -> 1
+      the 4 s proposal (states from the LQR sim;   padding); the bicycle-model state as C reads
+      lon / lat: centre acceleration from           it (``nuplan.ego_comfort_inputs``): lon =
+      ``state_array_to_center_state_array``,       a_r + lr (w^2 + dw/dt), lat = 0, jerk of the
+      jerk: rear-axle magnitude)                   rear-axle |a_r|; heading = yaw; < 4 steps -> 1
 EC    states of two plans 0.5 s apart, overlap      consecutive policy plans (dt apart): both
       compared (RMS of accel, jerk, yaw rate,       waypoint sets (+ the ego origin at tau = 0)
       yaw accel differences); {0, 1} per frame      in the world frame, cubic spline resampled
@@ -86,6 +87,7 @@ from scipy.signal import savgol_filter
 
 from drivee2e_jax import geometry
 from drivee2e_jax.dynamics import BicycleParams
+from drivee2e_jax.metrics.nuplan import ego_comfort_inputs
 from drivee2e_jax.replay import AgentStates
 from drivee2e_jax.types import EgoState
 
@@ -368,17 +370,20 @@ def _inside(v, lo: float, hi: float) -> bool:
     return bool(np.all((v > lo) & (v < hi)))
 
 
-def history_comfort(lon_accel, lat_accel, heading, dt: float) -> float:
+def history_comfort(lon_accel, lat_accel, heading, dt: float, accel_magnitude=None) -> float:
     """HC in {0, 1} (C ``ego_is_comfortable``) on one trajectory sampled at
-    ``dt`` s: lon / lat acceleration (m/s^2, ego frame), heading (rad), each
-    (n,). Strict bounds on the S-G smoothed signals (window 8), their jerks
-    (S-G derivative, window 15), yaw rate and yaw acceleration (window 5).
-    Fewer than 4 samples (C's yaw filter needs poly 3 < window): 1."""
+    ``dt`` s: lon / lat acceleration of the box centre (m/s^2, ego frame,
+    C's ``state_array_to_center_state_array``), heading (rad) and the
+    acceleration magnitude the jerk differentiates (C: the rear axle's, from
+    the un-shifted states; None: hypot of lon and lat), each (n,). Strict
+    bounds on the S-G smoothed signals (window 8), their jerks (S-G
+    derivative, window 15), yaw rate and yaw acceleration (window 5). Fewer
+    than 4 samples (C's yaw filter needs poly 3 < window): 1."""
     lon = np.asarray(lon_accel, np.float64)
     lat = np.asarray(lat_accel, np.float64)
     if lon.size < 4:
         return 1.0
-    mag = np.hypot(lon, lat)
+    mag = np.hypot(lon, lat) if accel_magnitude is None else np.asarray(accel_magnitude, np.float64)
     s_lon, s_lat, s_mag = (np.round(_smooth(x, 8, 2), 8) for x in (lon, lat, mag))
     ok = (
         _inside(s_lon, *HC_LON_ACCEL)
@@ -486,6 +491,9 @@ def _sub_metrics(log: Any, scenario: Any, dt: float, plans, plan_dt: float, ref_
     f, nv = log.facts, log.facts.navsim
     speed = np.asarray(log.speed, np.float64)
     idx = np.flatnonzero(active)
+    lon_acc, lat_acc, acc_mag = ego_comfort_inputs(
+        speed[idx], np.asarray(log.accel, np.float64)[idx], np.asarray(log.steer, np.float64)[idx],
+        np.asarray(log.yaw_rate, np.float64)[idx], dt)
     out = {
         "nc": no_at_fault_collision(active, f.agent_hit, f.agent_hit_id, f.at_fault, f.layout_hit, speed),
         "dac": 0.0 if np.any(active & (np.asarray(f.drivable_excess_m) > 0.0)) else 1.0,
@@ -495,12 +503,7 @@ def _sub_metrics(log: Any, scenario: Any, dt: float, plans, plan_dt: float, ref_
         "tlc": 0.0 if np.any(active & np.asarray(f.red_light, bool)) else 1.0,
         "ttc": 0.0 if np.any(active & np.asarray(nv.ttc_violation, bool)) else 1.0,
         "lk": lane_keeping(active, np.asarray(f.lane_offset, np.float64), np.asarray(nv.in_junction, bool), dt),
-        "hc": history_comfort(
-            np.asarray(log.accel, np.float64)[idx],
-            speed[idx] * np.asarray(log.yaw_rate, np.float64)[idx],
-            np.asarray(log.yaw, np.float64)[idx],
-            dt,
-        ),
+        "hc": history_comfort(lon_acc, lat_acc, np.asarray(log.yaw, np.float64)[idx], dt, acc_mag),
     }
     mult = out["nc"] * out["dac"] * out["ddc"] * out["tlc"]
     raw = 0.0

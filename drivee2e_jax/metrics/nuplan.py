@@ -50,10 +50,12 @@ centre is in, summed over 1 s windows   heading, only when no lane running its w
 collision classes VRU (pedestrian,      PEDESTRIAN, CYCLIST -> VRU; every other ``Category`` ->
 bicycle), vehicle, object               vehicle; layout contacts (``layout_hit`` rising edges) ->
                                         object, always at fault
-comfort: accelerations of the ego       lon acc = ``StepLog.accel``, lat acc = speed * yaw rate,
-state (``center_acceleration_2d``,      magnitude = hypot of the two (the kinematic centre-point
-rear-axle magnitude)                    accelerations; nuPlan's own bicycle model leaves the
-                                        rear-axle lateral term 0)
+comfort: ``center_acceleration_2d``    ``ego_comfort_inputs``: nuPlan's bicycle-model state rebuilt
+x / y for the lon / lat bounds, the     from the step log: rear-axle acceleration (a_r, 0) with a_r
+rear-axle acceleration's magnitude      = d/dt (speed * cos beta) (no lateral term, as nuPlan's
+for the jerk; 20 Hz, the first sample   ``KinematicBicycleModel``); centre x = a_r + lr (w^2 + dw/dt),
+the logged state's IMU values           centre y = 0 (nuPlan's ``get_acceleration_shifted``); jerk of
+                                        |a_r|; the first sample is the first simulated step
 comfort on < 3-5 samples: raises        a signal too short for its Savitzky-Golay fit is not
                                         checked (counts as within bounds)
 ======================================  ==========================================================
@@ -431,7 +433,86 @@ def _sg(x: np.ndarray, window: int, poly: int, deriv: int = 0, delta: float = 1.
     return np.round(savgol_filter(x, window_length=w, polyorder=poly, deriv=deriv, delta=delta), 8)
 
 
-def comfort_signals(accel, lat_accel, yaw, t) -> dict[str, np.ndarray | None]:
+def ego_comfort_inputs(speed, accel, steer, yaw_rate, dt: float,
+                       lr: float = 0.5 * DEFAULT_WHEELBASE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The accelerations nuPlan's comfort metrics read, from the simulated ego's step log.
+
+    nuPlan's simulated ego is a ``KinematicBicycleModel`` state referenced at
+    the rear axle (nuplan/planning/simulation/controller/motion_model/
+    kinematic_bicycle.py, ``propagate_state``): its ``rear_axle_acceleration_2d``
+    is (a_r, 0), a_r the change of the rear axle's forward speed over the step
+    (the lateral term is 0 "by model assumption"), ``angular_velocity`` w the
+    yaw rate and ``angular_acceleration`` (w_k - w_{k-1}) / dt. From it
+    (nuplan/common/actor_state/dynamic_car_state.py):
+
+    * ``center_acceleration_2d`` = ``get_acceleration_shifted((lr, 0), (a_r, 0),
+      w, dw/dt)`` = (a_r + lr w^2 + lr dw/dt, 0): both rigid-body terms are
+      added along the displacement, so the centre's lateral acceleration is 0
+      and its longitudinal one carries the angular terms. ``EgoLonAcceleration``
+      and ``EgoLatAcceleration`` read its x and y (``extract_ego_acceleration``).
+    * ``DynamicCarState.acceleration`` = |rear_axle_acceleration_2d| = |a_r|:
+      what ``EgoJerkStatistics`` differentiates (``acceleration_coordinate=
+      'magnitude'``).
+
+    Our bicycle (``dynamics.step``) is referenced at the box centre, half-way
+    along the wheelbase (``lr = wheelbase / 2``, nuPlan's
+    ``rear_axle_to_center_dist``); the rear axle moves along the heading at the
+    centre speed times cos(beta), beta = atan(tan(steer) / 2) the centre's slip
+    angle, so a_r = (v_k cos beta_k - v_{k-1} cos beta_{k-1}) / dt. Before the
+    first row: speed ``speed[0] - accel[0] * dt`` with the first row's slip
+    angle and yaw rate (so dw/dt = 0 there). The simulator's initial state has
+    steer and yaw rate 0 (``dynamics.ego_from_log``: not measured), where
+    nuPlan's first sample is the logged state with its measured angular
+    velocity; taking them literally would put a spurious lr * w / dt into the
+    first longitudinal sample of an episode that starts in a curve.
+
+    Args: (T,) each: centre speed m/s, ``StepLog.accel`` m/s^2 (the step's
+      mean (v1 - v0) / dt), front-wheel angle rad, mean yaw rate rad/s (rows
+      in time order from the episode's first step); dt s; lr m.
+    Returns: (lon, lat, magnitude), each (T,) m/s^2: the centre's x and y
+      acceleration and the rear axle's acceleration magnitude.
+    """
+    v = np.asarray(speed, np.float64)
+    a = np.asarray(accel, np.float64)
+    w = np.asarray(yaw_rate, np.float64)
+    cb = np.cos(np.arctan(0.5 * np.tan(np.asarray(steer, np.float64))))  # dynamics.step: lr / L = 1/2
+    v_r = v * cb
+    if len(v) == 0:
+        return v, v, v
+    v_r_prev = np.concatenate([[(v[0] - a[0] * dt) * cb[0]], v_r[:-1]])
+    a_r = (v_r - v_r_prev) / dt
+    w_dot = np.diff(w, prepend=w[0]) / dt
+    lon = a_r + lr * w**2 + lr * w_dot
+    return lon, np.zeros_like(lon), np.abs(a_r)
+
+
+def path_comfort_inputs(xy, yaw, dt: float, window: int = 9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Comfort inputs of a logged path that has no measured accelerations.
+
+    nuPlan reads a logged ego's accelerations from its IMU; a recorded path
+    (positions at ``dt``) has none, and differentiating positions step by
+    step turns centimetres of noise into m/s^2. This is a Savitzky-Golay
+    estimate (window ``window`` clipped to the path, order 3, second
+    derivative) of the acceleration vector, projected on the logged heading
+    (lon) and its normal (lat); the magnitude is their hypot (the IMU sees
+    both). A diagnostic reference for "is the log itself comfortable", not
+    a metric column.
+
+    Args: xy (n, 2) m, yaw (n,) rad, dt s.  Returns: (lon, lat, magnitude), each (n,) m/s^2.
+    """
+    xy = np.asarray(xy, np.float64)
+    yaw = np.asarray(yaw, np.float64)
+    w = min(window, len(xy) if len(xy) % 2 else len(xy) - 1)
+    if w <= 3:
+        z = np.zeros(len(xy))
+        return z, z, z
+    acc = savgol_filter(xy, w, 3, deriv=2, delta=dt, axis=0)
+    lon = acc[:, 0] * np.cos(yaw) + acc[:, 1] * np.sin(yaw)
+    lat = -acc[:, 0] * np.sin(yaw) + acc[:, 1] * np.cos(yaw)
+    return lon, lat, np.hypot(lon, lat)
+
+
+def comfort_signals(accel, lat_accel, yaw, t, accel_magnitude=None) -> dict[str, np.ndarray | None]:
     """nuPlan's six comfort signals (nuplan/planning/metrics/utils/state_extractors.py).
 
     * ``extract_ego_acceleration``: SG window min(8, n), order 2 (no derivative).
@@ -448,10 +529,13 @@ def comfort_signals(accel, lat_accel, yaw, t) -> dict[str, np.ndarray | None]:
     are unshifted, so even a steady ramp gets a kinked smoothed acceleration
     and a non-constant jerk; kept as nuPlan computes it.
 
-    Args: (n,) lon acc m/s^2, lat acc m/s^2, heading rad, time s.
+    Args: (n,) lon acc m/s^2, lat acc m/s^2, heading rad, time s, and the
+      acceleration magnitude the jerk differentiates, m/s^2 (nuPlan: the
+      rear axle's, ``ego_comfort_inputs``; None: hypot of lon and lat).
     """
     a = np.asarray(accel, dtype=np.float64)
     la = np.asarray(lat_accel, dtype=np.float64)
+    am = np.hypot(a, la) if accel_magnitude is None else np.asarray(accel_magnitude, dtype=np.float64)
     h = np.asarray(yaw, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
     dt = float(np.mean(np.diff(t))) if len(t) > 1 else 1.0
@@ -459,7 +543,7 @@ def comfort_signals(accel, lat_accel, yaw, t) -> dict[str, np.ndarray | None]:
     adj[1:] = np.cumsum(np.round(np.diff(h) / (2.0 * np.pi)))
     h = h - 2.0 * np.pi * adj
     lon = _sg(a, 8, 2)
-    mag = _sg(np.hypot(a, la), 8, 2)
+    mag = _sg(am, 8, 2)
     return {
         "lon_acc": lon,
         "lat_acc": _sg(la, 8, 2),
@@ -470,10 +554,11 @@ def comfort_signals(accel, lat_accel, yaw, t) -> dict[str, np.ndarray | None]:
     }
 
 
-def comfort_score(accel, lat_accel, yaw, t) -> float:
+def comfort_score(accel, lat_accel, yaw, t, accel_magnitude=None) -> float:
     """``EgoIsComfortableStatistics``: 1 iff all six signals stay strictly
-    inside their bounds (``WithinBoundMetricBase._compute_within_bound``)."""
-    s = comfort_signals(accel, lat_accel, yaw, t)
+    inside their bounds (``WithinBoundMetricBase._compute_within_bound``).
+    Arguments as ``comfort_signals``."""
+    s = comfort_signals(accel, lat_accel, yaw, t, accel_magnitude)
     bounds = {
         "lon_acc": LON_ACC_BOUNDS,
         "lat_acc": (-MAX_ABS_LAT_ACC, MAX_ABS_LAT_ACC),
@@ -538,6 +623,7 @@ def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
         ratio = progress_ratio(float(arcs[1] - arcs[0]), float(arcs[2] - arcs[0]))
 
     times = t if len(t) > 1 else np.arange(max(len(t), 1)) * dt
+    lon_acc, lat_acc, acc_mag = ego_comfort_inputs(speed, sel(log.accel), sel(log.steer), sel(log.yaw_rate), dt)
     cols = {
         "nuplan_no_ego_at_fault_collisions": collision_score(*collision_counts(hit, tid, cat, fault, lay)),
         "nuplan_drivable_area_compliance": drivable_score(sel(f.drivable_excess_m)),
@@ -547,7 +633,7 @@ def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
         "nuplan_time_to_collision_within_bound": ttc_score(sel(f.nuplan.ttc_s), speed,
                                                            _first_fault_ticks(hit, tid, fault, lay)),
         "nuplan_speed_limit_compliance": speed_limit_score(speed, sel(f.speed_limit), t),
-        "nuplan_ego_is_comfortable": comfort_score(sel(log.accel), speed * sel(log.yaw_rate), sel(log.yaw), times),
+        "nuplan_ego_is_comfortable": comfort_score(lon_acc, lat_acc, sel(log.yaw), times, acc_mag),
     }
     cols["nuplan_score"] = combine(cols)
     return cols
@@ -563,6 +649,8 @@ __all__ = [
     "comfort_signals",
     "direction_score",
     "drivable_score",
+    "ego_comfort_inputs",
+    "path_comfort_inputs",
     "episode_columns",
     "oncoming_travel",
     "progress_ratio",

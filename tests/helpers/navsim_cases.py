@@ -36,6 +36,7 @@ def straight_log(n: int, dt: float = 0.1, speed: float = 10.0, **overrides) -> S
         yaw=np.zeros(n),
         speed=np.full(n, speed),
         accel=np.zeros(n),
+        steer=np.zeros(n),
         yaw_rate=np.zeros(n),
         active=np.ones(n, bool),
         facts=facts,

@@ -82,7 +82,8 @@ def fake_log(n_active: int, n_pad: int, dt: float, *, x_end: float, speed: float
                                oncoming_m=full(0.0 if oncoming is None else oncoming, 99.0)),
     )
     return SimpleNamespace(t=k * dt, xy=np.stack([x, np.zeros(n)], -1), yaw=np.zeros(n),
-                           speed=full(speed, 0.0), accel=np.zeros(n), yaw_rate=np.zeros(n), active=act, facts=facts)
+                           speed=full(speed, 0.0), accel=np.zeros(n), steer=np.zeros(n), yaw_rate=np.zeros(n), active=act,
+                           facts=facts)
 
 
 def fake_scenario(expert_x, dt_log: float, route_len: int = 40):
