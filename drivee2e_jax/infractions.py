@@ -251,20 +251,38 @@ def drivable_excess(ego: EgoState, ego_lw, map_data: MapData):
 LANES_PER_TICK = 16
 
 
-def lane_boxes(lane_polygons, pad) -> jnp.ndarray:
-    """(L, 4) float32 [xmin, ymin, xmax, ymax] of each lane polygon grown by
-    ``pad`` m (empty, +inf/-inf, for a padded row); once per episode.
+@struct.dataclass
+class LaneIndex:
+    """The map's lane polygons prepared once per episode (``lane_index``).
 
-    Args:
-      lane_polygons: ``types.Polylines`` (L, P) (``MapData.lane_polygons``).
-      pad: () m, the ego's half-diagonal: a lane polygon holding any point of
-        the ego box then holds its centre in its grown box.
+    Attributes:
+      boxes: (L, 4) float32 [xmin, ymin, xmax, ymax] of each lane polygon grown
+             by the ego's half-diagonal, m (empty, +inf/-inf, for padding).
+      edges: (L, P, 4) float32 [ax, ay, bx, by] the polygon's closed edges, m.
+      edge_valid: (L, P) bool (False for padding and degenerate edges).
     """
+
+    boxes: jnp.ndarray
+    edges: jnp.ndarray
+    edge_valid: jnp.ndarray
+
+
+def lane_index(lane_polygons, pad) -> LaneIndex:
+    """``LaneIndex`` of ``types.Polylines`` (L, P) lane polygons
+    (``MapData.lane_polygons``, vertices a valid prefix as packing writes
+    them); ``pad`` () m, the ego's half-diagonal: a lane
+    polygon holding any point of the ego box then holds its centre in its
+    grown box."""
     ok = lane_polygons.point_valid & lane_polygons.valid[:, None]
     x, y = lane_polygons.xy[..., 0], lane_polygons.xy[..., 1]
     lo = lambda a: jnp.where(ok, a, jnp.inf).min(axis=1) - pad  # noqa: E731
     hi = lambda a: jnp.where(ok, a, -jnp.inf).max(axis=1) + pad  # noqa: E731
-    return jnp.stack([lo(x), lo(y), hi(x), hi(y)], axis=-1)
+    # Packed polygons hold their vertices as a valid prefix: vertex i's edge
+    # runs to vertex i + 1, the last valid one's back to vertex 0.
+    nxt_ok = jnp.concatenate([ok[:, 1:], jnp.zeros_like(ok[:, :1])], axis=1)
+    nxt = jnp.where(nxt_ok[..., None], jnp.roll(lane_polygons.xy, -1, axis=1), lane_polygons.xy[:, :1])
+    return LaneIndex(boxes=jnp.stack([lo(x), lo(y), hi(x), hi(y)], axis=-1),
+                     edges=jnp.concatenate([lane_polygons.xy, nxt], axis=-1), edge_valid=ok)
 
 
 @struct.dataclass
@@ -272,9 +290,9 @@ class LaneHits:
     """Which lanes hold which points this tick (``lane_hits``).
 
     Attributes:
-      rows:     (M,) int32 lane rows tested (those whose box holds the ego
-                centre; -1 padded).
-      inside:   (Q, M) bool point q lies in (or on) lane ``rows[m]``'s polygon.
+      rows:     (M,) int32 lane rows tested (those whose grown box holds the
+                ego centre; -1 padded).
+      inside:   (Q, M) bool point q lies in lane ``rows[m]``'s polygon.
       overflow: () bool more than M lane boxes held the centre.
     """
 
@@ -283,9 +301,32 @@ class LaneHits:
     overflow: jnp.ndarray
 
 
-def lane_hits(points, centre, boxes, lane_polygons, m: int = LANES_PER_TICK) -> LaneHits:
+def lane_rows(centre, index: LaneIndex, m: int = LANES_PER_TICK):
+    """(rows (M,) int32 -1 padded, overflow () bool): the lanes whose grown box
+    holds ``centre`` (2,), at most ``m`` of them."""
+    boxes = index.boxes
+    holds = (boxes[:, 0] <= centre[0]) & (centre[0] <= boxes[:, 2]) & (boxes[:, 1] <= centre[1]) & (centre[1] <= boxes[:, 3])
+    m = min(m, boxes.shape[0])
+    score, rows = jax.lax.top_k(holds.astype(jnp.float32), m)
+    return jnp.where(score > 0, rows, -1).astype(jnp.int32), jnp.sum(holds) > m
+
+
+def points_in_lanes(points, rows, index: LaneIndex):
+    """(Q, M) bool: point q of ``points`` (Q, 2) lies in lane ``rows[m]``'s
+    polygon (even-odd rule over its precomputed edges; False for row -1)."""
+    safe = jnp.maximum(rows, 0)
+    e, ok = index.edges[safe], index.edge_valid[safe] & (rows >= 0)[:, None]  # (M, P, 4), (M, P)
+    px, py = points[:, 0, None, None], points[:, 1, None, None]  # (Q, 1, 1)
+    ax, ay, bx, by = (e[None, ..., i] for i in range(4))  # (1, M, P)
+    straddles = (ay > py) != (by > py)
+    dy = jnp.where(straddles, by - ay, 1.0)
+    crossings = straddles & ok[None] & (px < ax + (py - ay) * (bx - ax) / dy)
+    return (jnp.sum(crossings, axis=-1) % 2) == 1
+
+
+def lane_hits(points, centre, index: LaneIndex, m: int = LANES_PER_TICK) -> LaneHits:
     """Point-in-polygon of ``points`` (Q, 2), all within the ego box, against
-    every lane whose grown box (``lane_boxes``) holds the ego ``centre`` (2,),
+    every lane whose grown box (``lane_index``) holds the ego ``centre`` (2,),
     at most ``m``.
 
     Exact for each lane: the polygon is the lane's own area (its boundaries,
@@ -294,18 +335,8 @@ def lane_hits(points, centre, boxes, lane_polygons, m: int = LANES_PER_TICK) -> 
     included -- no straight-over-a-car-length approximation. Every lane that
     can hold a point of the ego box is tested unless ``overflow``.
     """
-    holds = (boxes[:, 0] <= centre[0]) & (centre[0] <= boxes[:, 2]) & (boxes[:, 1] <= centre[1]) & (centre[1] <= boxes[:, 3])
-    m = min(m, boxes.shape[0])
-    score, rows = jax.lax.top_k(holds.astype(jnp.float32), m)
-    ok = score > 0
-    rows = jnp.where(ok, rows, -1).astype(jnp.int32)
-    safe = jnp.maximum(rows, 0)
-    xy, pv = lane_polygons.xy[safe], lane_polygons.point_valid[safe]
-
-    def one(p):
-        return jax.vmap(geometry.point_in_polygon, in_axes=(None, 0, 0))(p, xy, pv) & ok
-
-    return LaneHits(rows=rows, inside=jax.vmap(one)(points), overflow=jnp.sum(holds) > m)
+    rows, overflow = lane_rows(centre, index, m)
+    return LaneHits(rows=rows, inside=points_in_lanes(points, rows, index), overflow=overflow)
 
 
 @struct.dataclass
@@ -335,31 +366,36 @@ class EgoLanes:
     overflow: jnp.ndarray
 
 
-def ego_lanes(ego: EgoState, ego_lw, rear_offset, boxes, map_data: MapData) -> EgoLanes:
+def ego_lanes(ego: EgoState, ego_lw, rear_offset, index: LaneIndex, map_data: MapData) -> EgoLanes:
     """``EgoLanes`` of the ego box this tick.
+
+    The corners (``multi_lane``) and the centre / rear axle (the NAVSIM and
+    nuPlan facts) are tested apart, so a preset that reads only
+    ``multi_lane`` leaves the rest out of the compiled step.
 
     Args:
       ego: the ego after the step.  ego_lw: (2,) m.  rear_offset: () m from
         the rear axle to the box centre.
-      boxes: (L, 4) ``lane_boxes(map_data.lane_polygons, half-diagonal)``.
-      map_data: ``MapData`` (lane_polygons, lanes, lane_type).
+      index: ``lane_index(map_data.lane_polygons, half-diagonal)``, once per episode.
+      map_data: ``MapData`` (lanes, lane_type).
     """
     fwd = jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)])
     corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
-    pts = jnp.concatenate([corners, ego.xy[None], (ego.xy - rear_offset * fwd)[None]])  # (6, 2)
-    hits = lane_hits(pts, ego.xy, boxes, map_data.lane_polygons)
-    safe = jnp.maximum(hits.rows, 0)
+    rows, overflow = lane_rows(ego.xy, index)
+    in_corner = points_in_lanes(corners, rows, index)  # (4, M)
+    in_axis = points_in_lanes(jnp.stack([ego.xy, ego.xy - rear_offset * fwd]), rows, index)  # (2, M)
+    safe = jnp.maximum(rows, 0)
     lanes = map_data.lanes
     _, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lanes.xy[safe],
                                                                          lanes.point_valid[safe])
     return EgoLanes(
-        multi_lane=~jnp.any(jnp.all(hits.inside[:4], axis=0)),
-        centre_in=hits.inside[4],
-        rear_in=hits.inside[5],
+        multi_lane=~jnp.any(jnp.all(in_corner, axis=0)),
+        centre_in=in_axis[0],
+        rear_in=in_axis[1],
         tangent=jnp.stack([jnp.cos(heading), jnp.sin(heading)], axis=-1),
-        connector=(map_data.lane_type[safe] == LaneType.CONNECTOR) & (hits.rows >= 0),
-        rows=hits.rows,
-        overflow=hits.overflow,
+        connector=(map_data.lane_type[safe] == LaneType.CONNECTOR) & (rows >= 0),
+        rows=rows,
+        overflow=overflow,
     )
 
 

@@ -106,8 +106,8 @@ class SimContext:
       ego_lw:    (2,) float32 ego length and width, m.
       speed_limit: (R,) float32 speed limit along the route, m/s.
       obstacles: (O, ...) ``geometry.PolygonSAT`` of the static obstacles.
-      lane_boxes: (L, 4) float32 bounding box of each lane polygon grown by the
-                 ego's half-diagonal (``infractions.lane_boxes``).
+      lanes_index: ``infractions.LaneIndex`` of the lane polygons: boxes grown
+                 by the ego's half-diagonal and closed edges.
       log_overlap: (A, 2) int32 [first, last] log steps during which the
                  LOGGED ego box already overlaps each agent's logged box
                  ([T, -1]: none); a contact with that agent is ignored
@@ -123,7 +123,7 @@ class SimContext:
     ego_lw: jnp.ndarray
     speed_limit: jnp.ndarray
     obstacles: geometry.PolygonSAT
-    lane_boxes: jnp.ndarray
+    lanes_index: infractions.LaneIndex
     log_overlap: jnp.ndarray
     path_arc: jnp.ndarray | None = None
 
@@ -362,7 +362,7 @@ class Simulator:
             ego_lw=tr.size[i, :2],
             speed_limit=_route_speed_limits(scenario, lanes),
             obstacles=infractions.obstacle_sat(scenario.map),
-            lane_boxes=infractions.lane_boxes(scenario.map.lane_polygons, 0.5 * geometry.safe_norm(tr.size[i, :2])),
+            lanes_index=infractions.lane_index(scenario.map.lane_polygons, 0.5 * geometry.safe_norm(tr.size[i, :2])),
             log_overlap=infractions.logged_overlap_spans(tr, i, tr.size[i, :2]),
             path_arc=reactive.path_arc(tr) if self.config.agents == "idm" else None,
         )
@@ -463,7 +463,7 @@ class Simulator:
         lane_xy, lane_pv, lane_ok, lane_w = _lane_rows(scenario, state.ctx.lanes)
         off, offset = infractions.lane_status(ego, lane_xy, lane_pv, lane_ok, lane_w)
         rear_offset = getattr(self.config.dynamics, "lr", 0.0)
-        lanes = infractions.ego_lanes(ego, lw, rear_offset, state.ctx.lane_boxes, scenario.map)
+        lanes = infractions.ego_lanes(ego, lw, rear_offset, state.ctx.lanes_index, scenario.map)
         multi_lane = lanes.multi_lane
         excess = infractions.drivable_excess(ego, lw, scenario.map)
         kind = infractions.collision_type(

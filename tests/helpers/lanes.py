@@ -43,8 +43,8 @@ def lane_map(centrelines, widths=3.5, types=None, valid=None):
 
 def ego_lanes(ego, ego_lw, lmap, rear_offset=1.45):
     """``infractions.EgoLanes`` of ``ego`` on ``lane_map(...)``."""
-    boxes = inf.lane_boxes(lmap.lane_polygons, 0.5 * geometry.safe_norm(jnp.asarray(ego_lw, jnp.float32)))
-    return inf.ego_lanes(ego, jnp.asarray(ego_lw, jnp.float32), rear_offset, boxes, lmap)
+    index = inf.lane_index(lmap.lane_polygons, 0.5 * geometry.safe_norm(jnp.asarray(ego_lw, jnp.float32)))
+    return inf.ego_lanes(ego, jnp.asarray(ego_lw, jnp.float32), rear_offset, index, lmap)
 
 
 CONNECTOR = int(LaneType.CONNECTOR)
