@@ -242,13 +242,15 @@ def drivable_excess(ego: EgoState, ego_lw, map_data: MapData):
     return area_distance(corners, map_data.drivable_edges, map_data.drivable_edges_valid).max()
 
 
-#: Lanes whose polygon is tested per tick: those whose bounding box, grown by
-#: the ego's half-diagonal, holds the ego centre -- every lane that holds any
-#: point of the ego box is among them. ``LaneHits.overflow`` says when more
-#: than this many boxes held the centre (the lanes beyond were not tested).
-#: On twin15 val's logged ego positions at most 14 grown boxes hold the centre
-#: (mean 4.6, 0.26 % of positions more than 12).
+#: Lanes tested per tick for the ego centre and rear axle: those whose box
+#: meets the ego's bounding box (every lane holding a point of the ego box is
+#: among them unless ``EgoLanes.overflow``). On twin15 val's logged ego poses
+#: at most 14 lane boxes meet it.
 LANES_PER_TICK = 16
+#: Lanes tested per tick for ``multi_lane``: those whose box holds the ego's
+#: whole bounding box (a lane holding all four corners does). On twin15 val's
+#: logged ego poses at most 12 do, 2 on average.
+LANES_FULL_PER_TICK = 12
 
 
 @struct.dataclass
@@ -256,10 +258,12 @@ class LaneIndex:
     """The map's lane polygons prepared once per episode (``lane_index``).
 
     Attributes:
-      boxes: (L, 4) float32 [xmin, ymin, xmax, ymax] of each lane polygon grown
-             by the ego's half-diagonal, m (empty, +inf/-inf, for padding).
-      edges: (L, P, 4) float32 [ax, ay, bx, by] the polygon's closed edges, m.
-      edge_valid: (L, P) bool (False for padding and degenerate edges).
+      boxes: (L, 4) float32 [xmin, ymin, xmax, ymax] of each lane polygon, m
+             (empty, +inf/-inf, for padding).
+      edges: (L, P, 4) float32 [ax, ay, by, dxdy] of the polygon's closed
+             edges: start, end y and the inverse slope (bx - ax) / (by - ay)
+             (0 for a horizontal edge, which no horizontal ray crosses), m.
+      edge_valid: (L, P) bool (False for padding).
     """
 
     boxes: jnp.ndarray
@@ -267,22 +271,22 @@ class LaneIndex:
     edge_valid: jnp.ndarray
 
 
-def lane_index(lane_polygons, pad) -> LaneIndex:
+def lane_index(lane_polygons) -> LaneIndex:
     """``LaneIndex`` of ``types.Polylines`` (L, P) lane polygons
     (``MapData.lane_polygons``, vertices a valid prefix as packing writes
-    them); ``pad`` () m, the ego's half-diagonal: a lane
-    polygon holding any point of the ego box then holds its centre in its
-    grown box."""
+    them)."""
     ok = lane_polygons.point_valid & lane_polygons.valid[:, None]
     x, y = lane_polygons.xy[..., 0], lane_polygons.xy[..., 1]
-    lo = lambda a: jnp.where(ok, a, jnp.inf).min(axis=1) - pad  # noqa: E731
-    hi = lambda a: jnp.where(ok, a, -jnp.inf).max(axis=1) + pad  # noqa: E731
+    lo = lambda a: jnp.where(ok, a, jnp.inf).min(axis=1)  # noqa: E731
+    hi = lambda a: jnp.where(ok, a, -jnp.inf).max(axis=1)  # noqa: E731
     # Packed polygons hold their vertices as a valid prefix: vertex i's edge
     # runs to vertex i + 1, the last valid one's back to vertex 0.
     nxt_ok = jnp.concatenate([ok[:, 1:], jnp.zeros_like(ok[:, :1])], axis=1)
     nxt = jnp.where(nxt_ok[..., None], jnp.roll(lane_polygons.xy, -1, axis=1), lane_polygons.xy[:, :1])
+    dy = nxt[..., 1] - y
+    inv_slope = jnp.where(dy != 0, (nxt[..., 0] - x) / jnp.where(dy != 0, dy, 1.0), 0.0)
     return LaneIndex(boxes=jnp.stack([lo(x), lo(y), hi(x), hi(y)], axis=-1),
-                     edges=jnp.concatenate([lane_polygons.xy, nxt], axis=-1), edge_valid=ok)
+                     edges=jnp.stack([x, y, nxt[..., 1], inv_slope], axis=-1), edge_valid=ok)
 
 
 @struct.dataclass
@@ -301,14 +305,19 @@ class LaneHits:
     overflow: jnp.ndarray
 
 
-def lane_rows(centre, index: LaneIndex, m: int = LANES_PER_TICK):
-    """(rows (M,) int32 -1 padded, overflow () bool): the lanes whose grown box
-    holds ``centre`` (2,), at most ``m`` of them."""
-    boxes = index.boxes
-    holds = (boxes[:, 0] <= centre[0]) & (centre[0] <= boxes[:, 2]) & (boxes[:, 1] <= centre[1]) & (centre[1] <= boxes[:, 3])
-    m = min(m, boxes.shape[0])
-    score, rows = jax.lax.top_k(holds.astype(jnp.float32), m)
-    return jnp.where(score > 0, rows, -1).astype(jnp.int32), jnp.sum(holds) > m
+def lane_rows(lo, hi, index: LaneIndex, m: int = LANES_PER_TICK, *, contain: bool = False):
+    """(rows (M,) int32 -1 padded, overflow () bool): the lanes whose box meets
+    the axis-aligned box [lo, hi] ((2,) each, m) -- or, with ``contain``,
+    holds all of it -- at most ``m`` of them. Every lane polygon holding a
+    point of [lo, hi] (all of it) is among them unless ``overflow``."""
+    b = index.boxes
+    if contain:
+        meets = (b[:, 0] <= lo[0]) & (hi[0] <= b[:, 2]) & (b[:, 1] <= lo[1]) & (hi[1] <= b[:, 3])
+    else:
+        meets = (b[:, 0] <= hi[0]) & (lo[0] <= b[:, 2]) & (b[:, 1] <= hi[1]) & (lo[1] <= b[:, 3])
+    m = min(m, b.shape[0])
+    score, rows = jax.lax.top_k(meets.astype(jnp.float32), m)
+    return jnp.where(score > 0, rows, -1).astype(jnp.int32), jnp.sum(meets) > m
 
 
 def points_in_lanes(points, rows, index: LaneIndex):
@@ -317,25 +326,22 @@ def points_in_lanes(points, rows, index: LaneIndex):
     safe = jnp.maximum(rows, 0)
     e, ok = index.edges[safe], index.edge_valid[safe] & (rows >= 0)[:, None]  # (M, P, 4), (M, P)
     px, py = points[:, 0, None, None], points[:, 1, None, None]  # (Q, 1, 1)
-    ax, ay, bx, by = (e[None, ..., i] for i in range(4))  # (1, M, P)
-    straddles = (ay > py) != (by > py)
-    dy = jnp.where(straddles, by - ay, 1.0)
-    crossings = straddles & ok[None] & (px < ax + (py - ay) * (bx - ax) / dy)
+    ax, ay, by, inv = (e[None, ..., i] for i in range(4))  # (1, M, P)
+    crossings = ((ay > py) != (by > py)) & ok[None] & (px < ax + (py - ay) * inv)
     return (jnp.sum(crossings, axis=-1) % 2) == 1
 
 
-def lane_hits(points, centre, index: LaneIndex, m: int = LANES_PER_TICK) -> LaneHits:
-    """Point-in-polygon of ``points`` (Q, 2), all within the ego box, against
-    every lane whose grown box (``lane_index``) holds the ego ``centre`` (2,),
-    at most ``m``.
+def lane_hits(points, index: LaneIndex, m: int = LANES_PER_TICK) -> LaneHits:
+    """Point-in-polygon of ``points`` (Q, 2) against every lane whose box
+    meets the points' bounding box, at most ``m`` (``lane_rows``).
 
     Exact for each lane: the polygon is the lane's own area (its boundaries,
     or its curved centreline +- width / 2; ``MapData.lane_polygons``), tested
     with the even-odd rule along every edge, curves and junction connectors
     included -- no straight-over-a-car-length approximation. Every lane that
-    can hold a point of the ego box is tested unless ``overflow``.
+    holds one of the points is tested unless ``overflow``.
     """
-    rows, overflow = lane_rows(centre, index, m)
+    rows, overflow = lane_rows(points.min(axis=0), points.max(axis=0), index, m)
     return LaneHits(rows=rows, inside=points_in_lanes(points, rows, index), overflow=overflow)
 
 
@@ -381,21 +387,26 @@ def ego_lanes(ego: EgoState, ego_lw, rear_offset, index: LaneIndex, map_data: Ma
     """
     fwd = jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)])
     corners = geometry.box_corners(ego.xy, ego.yaw, ego_lw[0], ego_lw[1])
-    rows, overflow = lane_rows(ego.xy, index)
-    in_corner = points_in_lanes(corners, rows, index)  # (4, M)
+    # multi_lane: a lane holding all four corners has a box holding the
+    # ego's whole bounding box -- few lanes do (twin15 val: at most 12).
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    full, full_over = lane_rows(lo, hi, index, LANES_FULL_PER_TICK, contain=True)
+    held = jnp.all(points_in_lanes(corners, full, index), axis=0)
+    # The centre and rear axle: the lanes whose box meets the ego's box.
+    rows, overflow = lane_rows(lo, hi, index)
     in_axis = points_in_lanes(jnp.stack([ego.xy, ego.xy - rear_offset * fwd]), rows, index)  # (2, M)
     safe = jnp.maximum(rows, 0)
     lanes = map_data.lanes
     _, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lanes.xy[safe],
                                                                          lanes.point_valid[safe])
     return EgoLanes(
-        multi_lane=~jnp.any(jnp.all(in_corner, axis=0)),
+        multi_lane=~jnp.any(held),
         centre_in=in_axis[0],
         rear_in=in_axis[1],
         tangent=jnp.stack([jnp.cos(heading), jnp.sin(heading)], axis=-1),
         connector=(map_data.lane_type[safe] == LaneType.CONNECTOR) & (rows >= 0),
         rows=rows,
-        overflow=overflow,
+        overflow=overflow | full_over,
     )
 
 

@@ -106,8 +106,8 @@ class SimContext:
       ego_lw:    (2,) float32 ego length and width, m.
       speed_limit: (R,) float32 speed limit along the route, m/s.
       obstacles: (O, ...) ``geometry.PolygonSAT`` of the static obstacles.
-      lanes_index: ``infractions.LaneIndex`` of the lane polygons: boxes grown
-                 by the ego's half-diagonal and closed edges.
+      lanes_index: ``infractions.LaneIndex`` of the lane polygons: their
+                 boxes and closed edges.
       log_overlap: (A, 2) int32 [first, last] log steps during which the
                  LOGGED ego box already overlaps each agent's logged box
                  ([T, -1]: none); a contact with that agent is ignored
@@ -362,7 +362,7 @@ class Simulator:
             ego_lw=tr.size[i, :2],
             speed_limit=_route_speed_limits(scenario, lanes),
             obstacles=infractions.obstacle_sat(scenario.map),
-            lanes_index=infractions.lane_index(scenario.map.lane_polygons, 0.5 * geometry.safe_norm(tr.size[i, :2])),
+            lanes_index=infractions.lane_index(scenario.map.lane_polygons),
             log_overlap=infractions.logged_overlap_spans(tr, i, tr.size[i, :2]),
             path_arc=reactive.path_arc(tr) if self.config.agents == "idm" else None,
         )

@@ -149,8 +149,8 @@ def test_lane_hits_match_shapely_on_curved_lanes(deg, off, dyaw):
     ego = ego_from_log(jnp.asarray(centre, jnp.float32), jnp.asarray(yaw, jnp.float32), jnp.zeros(2), jnp.zeros(()))
     corners = np.asarray(geo.box_corners(ego.xy, ego.yaw, 4.6, 2.0))
     pts = np.concatenate([corners, centre[None]])
-    index = inf.lane_index(poly, jnp.hypot(2.3, 1.0))
-    hits = inf.lane_hits(jnp.asarray(pts, jnp.float32), ego.xy, index)
+    index = inf.lane_index(poly)
+    hits = inf.lane_hits(jnp.asarray(pts, jnp.float32), index)
     rows = np.asarray(hits.rows)
     got = np.zeros((len(pts), len(lanes)), bool)
     for j, r in enumerate(rows):

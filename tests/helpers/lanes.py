@@ -8,7 +8,6 @@ from types import SimpleNamespace
 import jax.numpy as jnp
 import numpy as np
 
-from drivee2e_jax import geometry
 from drivee2e_jax import infractions as inf
 from drivee2e_jax.records import LaneRecord
 from drivee2e_jax.scenario.drivable import lane_polygon
@@ -43,7 +42,7 @@ def lane_map(centrelines, widths=3.5, types=None, valid=None):
 
 def ego_lanes(ego, ego_lw, lmap, rear_offset=1.45):
     """``infractions.EgoLanes`` of ``ego`` on ``lane_map(...)``."""
-    index = inf.lane_index(lmap.lane_polygons, 0.5 * geometry.safe_norm(jnp.asarray(ego_lw, jnp.float32)))
+    index = inf.lane_index(lmap.lane_polygons)
     return inf.ego_lanes(ego, jnp.asarray(ego_lw, jnp.float32), rear_offset, index, lmap)
 
 
