@@ -48,7 +48,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from drivee2e_jax import hostapi
+from drivee2e_jax import hostapi, hostbridge
 from drivee2e_jax.errors import DriveE2EError, one_line
 from drivee2e_jax.observe import registry
 from drivee2e_jax.observe.sensors import SensorConfig, assets_axes, build_assets
@@ -630,7 +630,10 @@ def _trace_problem(under: str, e: Exception, source: str | None = None) -> str:
 
 def _check_host(policy, report: Report, probe: _Probe) -> dict | None:
     at, nw, b, ids = policy.action_type, getattr(policy, "num_waypoints", None), probe.batch, probe.ids
-    obs = [hostapi.from_fields(jax.device_get(o)) for o in probe.obs]
+    fields = getattr(policy, "observation_fields", None)
+    fields = None if fields is None else tuple(fields)
+    # exactly what bench sends: the fields the policy asked for (hostbridge.observed)
+    obs = [hostapi.from_fields(jax.device_get(hostbridge.observed(o, fields))) for o in probe.obs]
 
     def reset():
         try:
