@@ -82,7 +82,7 @@ class HostBridge:
             self.state = self.host.reset(list(meta_rows))
         except DriveE2EError:
             raise
-        except Exception as e:  # a user's policy: one line, not a traceback
+        except (Exception, SystemExit) as e:  # a user's policy: one line, not a traceback
             raise DriveE2EError(f"{self.source}: reset(meta) {raised_text(e, self.source)}") from e
 
     def _host_act(self, obs) -> Controls | Waypoints:
@@ -98,7 +98,7 @@ class HostBridge:
                 return _to_types(action)
             except DriveE2EError as e:
                 self.failure = e.message
-            except Exception as e:  # noqa: BLE001 - any error of a user's policy becomes one line
+            except (Exception, SystemExit) as e:  # noqa: BLE001 - any error of a user's policy becomes one line
                 self.failure = f"{where}: act {raised_text(e, self.source)}"
         return _brake(self.action_type, b, self.num_waypoints)
 
@@ -110,7 +110,7 @@ class HostBridge:
             out = self.host.act(hostapi.from_fields(obs_batch), self.state)
         except DriveE2EError:
             raise
-        except Exception as e:  # a user's policy: one line, not a traceback
+        except (Exception, SystemExit) as e:  # a user's policy: one line, not a traceback
             raise DriveE2EError(f"{where}: act {raised_text(e, self.source)}") from e
         result = hostapi.check_act_result(out, where)
         action = hostapi.check_action(result[0], "waypoints", batch_size(obs_batch, self.batch), where)

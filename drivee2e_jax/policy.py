@@ -140,8 +140,10 @@ def user_frame(exc: BaseException, source: str | Path | None = None) -> str:
 def raised_text(exc: BaseException, source: str | Path | None = None, limit: int = 200) -> str:
     """``raised Type: message at file:line`` on one line: the message cut at
     ``limit`` characters, the place from :func:`user_frame` (when found)."""
-    text = one_line(exc, limit)
     frame = user_frame(exc, source)
+    if isinstance(exc, SystemExit):  # a policy must not end the benchmark's process
+        return f"called sys.exit({exc.code!r})" + (f" at {frame}" if frame else "")
+    text = one_line(exc, limit)
     return f"raised {type(exc).__name__}" + (f": {text}" if text else "") + (f" at {frame}" if frame else "")
 
 

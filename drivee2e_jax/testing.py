@@ -65,8 +65,10 @@ __all__ = ["Problem", "Report", "check_policy", "check_policy_file", "check_init
 #: ``suite="tiny"``: the repository's four-scenario example suite.
 TINY_SUITE = EXAMPLE_SUITES["tiny"]
 DEFAULT_SUITE = "tiny"
-#: Observations per scenario, and simulator steps (along the log) between them.
-DEFAULT_STEPS = 3
+#: Observations per scenario (consecutive ``act`` calls: a policy's warm-up,
+#: history buffer or first action chunk fails within them), and simulator steps
+#: (along the log) between them.
+DEFAULT_STEPS = 10
 STEP_STRIDE = 5
 #: Tolerance of the jit / vmap comparisons: XLA fuses float ops differently
 #: from eager dispatch, and GPUs multiply float32 matrices in TF32 (~1e-3).
@@ -164,7 +166,9 @@ def check_policy(policy: Any, *, source: str | None = None, suite: str | Path | 
         info = _check_jax(policy, report, probe, jax.random.PRNGKey(seed))
     if info is not None:
         kind = "host policy" if host else "JAX policy"
-        what = f"{probe.batch} scenario(s) x {len(probe.obs)} step(s)" + ("" if host else ", jit + vmap")
+        t = len(probe.obs)
+        what = (f"{probe.batch} scenario(s) x {t} step(s) (act calls 0-{t - 1}, simulator steps 0-"
+                f"{(t - 1) * STEP_STRIDE} along the logs)" + ("" if host else ", jit + vmap"))
         report.summary = (f"{name}: {kind}, {info['action']}, state: {info['state']}, "
                           f"sensors: {', '.join(required) or 'none'}; {what}")
     return report
@@ -638,7 +642,7 @@ def _check_host(policy, report: Report, probe: _Probe) -> dict | None:
     def reset():
         try:
             return True, policy.reset([dict(m) for m in probe.meta])
-        except Exception as e:  # noqa: BLE001 - a user's policy: one line
+        except (Exception, SystemExit) as e:  # noqa: BLE001 - a user's policy: one line
             report.add("reset", f"reset(meta) {raised_text(e, report.source)} (a batch of {b} scenarios)")
             return False, None
 
@@ -646,7 +650,7 @@ def _check_host(policy, report: Report, probe: _Probe) -> dict | None:
         where = report.source
         try:
             result = policy.act(o, state)
-        except Exception as e:  # noqa: BLE001
+        except (Exception, SystemExit) as e:  # noqa: BLE001
             report.add("act", f"act(obs, state) {raised_text(e, report.source)} (step {t}, a batch of {b} scenarios)")
             return None
         try:

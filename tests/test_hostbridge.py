@@ -262,3 +262,24 @@ def test_a_host_policy_that_does_not_observe_ego_runs_in_check_policy_and_bench(
     assert len(result.rows) == 2
     seen = log.read_text().split("\n")[:-1]
     assert seen and all(line == "True 2" for line in seen)
+
+
+def test_a_host_policy_calling_sys_exit_is_one_line_naming_its_file_and_line(tmp_path):
+    import types
+
+    import numpy as np
+
+    from drivee2e_jax import hostapi
+
+    path = tmp_path / "exiter.py"
+    path.write_text("import sys\nfrom drivee2e_jax.hostapi import HostPolicy\n\n\nclass P(HostPolicy):\n"
+                    "    name = 'exiter'\n    action_type = 'controls'\n    observation_fields = ('route',)\n\n"
+                    "    def reset(self, meta):\n        return None\n\n    def act(self, obs, state):\n"
+                    "        sys.exit(3)\n\n\npolicy = P()\n")
+    bridge = hostbridge.wrap(load_policy(path))
+    bridge.begin([{"scenario_id": "a"}, {"scenario_id": "b"}])
+    obs = types.SimpleNamespace(**{f: None for f in hostapi.field_names(hostapi.Observation)})
+    obs.route = np.zeros((2, 5, 2), np.float32)
+    action = bridge._host_act(obs)  # no SystemExit escapes: the rollout brakes, the failure is kept
+    assert np.shape(action.brake) == (2,)
+    assert bridge.failure == f"{path}, step 0: act called sys.exit(3) at {path}:14"
