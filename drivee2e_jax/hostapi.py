@@ -189,10 +189,12 @@ def field_names(cls: type) -> tuple[str, ...]:
 
 def _as_array(value: Any, what: str) -> np.ndarray:
     try:
-        return np.asarray(value)
+        array = np.asarray(value)
     except Exception as e:  # noqa: BLE001 - a user's object: report it in one line
         raise DriveE2EError(f"{what}: cannot be converted to a numpy array ({type(value).__name__}: "
                             f"{type(e).__name__}: {e})") from e
+    # a policy may write into it (torch.from_numpy warns on read-only arrays; callbacks hand those over)
+    return array if array.flags.writeable else array.copy()
 
 
 def _mapping_from(value: Mapping, what: str) -> dict:

@@ -82,12 +82,12 @@ class HostBridge:
             self.state = self.host.reset(list(meta_rows))
         except DriveE2EError:
             raise
-        except Exception as e:  # a user's policy: one line, not a traceback
+        except (Exception, SystemExit) as e:  # a user's policy: one line, not a traceback
             raise DriveE2EError(f"{self.source}: reset(meta) {raised_text(e, self.source)}") from e
 
     def _host_act(self, obs) -> Controls | Waypoints:
         """The callback: (B, ...) numpy observation -> (B, ...) numpy action."""
-        b = int(np.shape(obs.ego)[0])
+        b = batch_size(obs, self.batch)
         if self.failure is None:
             where = f"{self.source}, step {self.step}"
             try:
@@ -98,7 +98,7 @@ class HostBridge:
                 return _to_types(action)
             except DriveE2EError as e:
                 self.failure = e.message
-            except Exception as e:  # noqa: BLE001 - any error of a user's policy becomes one line
+            except (Exception, SystemExit) as e:  # noqa: BLE001 - any error of a user's policy becomes one line
                 self.failure = f"{where}: act {raised_text(e, self.source)}"
         return _brake(self.action_type, b, self.num_waypoints)
 
@@ -110,10 +110,10 @@ class HostBridge:
             out = self.host.act(hostapi.from_fields(obs_batch), self.state)
         except DriveE2EError:
             raise
-        except Exception as e:  # a user's policy: one line, not a traceback
+        except (Exception, SystemExit) as e:  # a user's policy: one line, not a traceback
             raise DriveE2EError(f"{where}: act {raised_text(e, self.source)}") from e
         result = hostapi.check_act_result(out, where)
-        action = hostapi.check_action(result[0], "waypoints", int(np.shape(obs_batch.ego)[0]), where)
+        action = hostapi.check_action(result[0], "waypoints", batch_size(obs_batch, self.batch), where)
         return int(action.xy.shape[1])
 
     # JAX side ----------------------------------------------------------------
@@ -125,11 +125,33 @@ class HostBridge:
 
     def act(self, params, obs, policy_state, key):
         shapes = _action_shapes(self.action_type, self.num_waypoints)
-        if self.observation_fields is not None:  # only what the policy reads is computed and sent
-            keep = set(self.observation_fields) | SENSOR_FIELDS  # sensors: as required_sensors says
-            obs = obs.replace(**{f: None for f in OBS_FIELDS if f not in keep})
+        obs = observed(obs, self.observation_fields)  # only what the policy reads is computed and sent
         action = jax.pure_callback(self._host_act, shapes, obs, vmap_method="expand_dims")
         return action, policy_state + 1
+
+
+def observed(obs, observation_fields):
+    """``obs`` (a ``types.Observation``) with the fields a host policy does not
+    read set to None: ``observation_fields`` (None: all) plus the sensor fields
+    (computed as ``required_sensors`` says). What the bridge sends and what
+    ``check-policy`` shows the policy."""
+    if observation_fields is None:
+        return obs
+    keep = set(observation_fields) | SENSOR_FIELDS
+    return obs.replace(**{f: None for f in OBS_FIELDS if f not in keep})
+
+
+def batch_size(obs, default: int | None = None) -> int:
+    """B of a batched observation: the leading axis of its first array leaf,
+    whichever fields were sent (no field is required, ``ego`` included);
+    ``default`` when it has no array at all."""
+    for leaf in jax.tree_util.tree_leaves(obs):
+        if np.ndim(leaf) >= 1:
+            return int(np.shape(leaf)[0])
+    if default is None:
+        raise DriveE2EError("the observation holds no array to take the batch size from "
+                            "(observation_fields selected nothing)")
+    return int(default)
 
 
 def is_host(policy) -> bool:

@@ -83,6 +83,10 @@ def load_policy(path: str | Path, **kwargs) -> Policy | HostPolicy:
     """Load a policy from a Python file (a JAX ``Policy`` or a ``HostPolicy``),
     or connect to a remote one (``remote://HOST:PORT``, ``drivee2e serve-policy``).
 
+    ``path`` takes what ``--policy`` takes: a file, a zoo name (``"expert"``),
+    ``NAME_OR_FILE:key=value,...`` (``make_policy`` arguments, JSON values;
+    ``name=`` renames; ``kwargs`` win over the spec's) or ``remote://HOST:PORT``.
+
     Raises DriveE2EError (one line) when the file is missing, fails to import,
     or defines neither ``policy`` nor ``make_policy``, or the object lacks the
     protocol's methods.
@@ -94,7 +98,16 @@ def load_policy(path: str | Path, **kwargs) -> Policy | HostPolicy:
         pol = RemotePolicy(spec.address, **spec.kwargs, name=spec.name or None)
         pol.source = str(path)
         return pol
+    rename = ""
+    if not Path(path).is_file():  # a zoo name or PATH:key=value,... as on the command line
+        path, spec_kwargs, rename = parse_policy_spec(str(path))
+        kwargs = {**spec_kwargs, **kwargs}
     pol = load_policy_object(path, **kwargs)
+    if rename:
+        try:
+            pol.name = rename
+        except AttributeError as e:
+            raise DriveE2EError(f"{path}: cannot rename the policy to {rename!r} ({e})") from e
     if isinstance(pol, HostPolicy):  # runs on the host; the rollout calls it through hostbridge
         validate_host_policy(pol, str(path))
         pol.source = str(path)
@@ -127,8 +140,10 @@ def user_frame(exc: BaseException, source: str | Path | None = None) -> str:
 def raised_text(exc: BaseException, source: str | Path | None = None, limit: int = 200) -> str:
     """``raised Type: message at file:line`` on one line: the message cut at
     ``limit`` characters, the place from :func:`user_frame` (when found)."""
-    text = one_line(exc, limit)
     frame = user_frame(exc, source)
+    if isinstance(exc, SystemExit):  # a policy must not end the benchmark's process
+        return f"called sys.exit({exc.code!r})" + (f" at {frame}" if frame else "")
+    text = one_line(exc, limit)
     return f"raised {type(exc).__name__}" + (f": {text}" if text else "") + (f" at {frame}" if frame else "")
 
 

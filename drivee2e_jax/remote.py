@@ -283,10 +283,9 @@ def serve(policy: HostPolicy, port: int, host: str = "127.0.0.1", *, source: str
                     raise _WireError("reset needs meta: a non-empty list of row dicts")
                 try:
                     state = policy.reset(meta)
-                except Exception as e:
+                except (Exception, SystemExit) as e:
                     log(traceback.format_exc().rstrip())
-                    raise DriveE2EError(f"{source}: policy {info['name']!r} raised in reset: "
-                                        f"{type(e).__name__}: {e}") from e
+                    raise DriveE2EError(f"{source}: policy {info['name']!r} {_raised(e, source)} in reset") from e
                 session = f"{nonce}-{next(counter)}"
                 sessions[session] = [state, len(meta)]
                 while len(sessions) > max_sessions:
@@ -308,10 +307,10 @@ def serve(policy: HostPolicy, port: int, host: str = "127.0.0.1", *, source: str
                     raise _WireError(f"observation batch size {obs.batch_size}, the session was reset with {batch}")
                 try:
                     result = policy.act(obs, state)
-                except Exception as e:
+                except (Exception, SystemExit) as e:
                     log(traceback.format_exc().rstrip())
-                    raise DriveE2EError(f"{source}: policy {info['name']!r} raised in act at step {step}: "
-                                        f"{type(e).__name__}: {e}") from e
+                    raise DriveE2EError(f"{source}: policy {info['name']!r} {_raised(e, source)} in act "
+                                        f"at step {step}") from e
                 action, state = check_act_result(result, where)
                 action = check_action(action, info["action_type"], batch, where, num_waypoints=info["num_waypoints"])
                 sessions[session][0] = state
@@ -557,3 +556,22 @@ class RemotePolicy(HostPolicy):
             if not reply.get("ok"):
                 raise DriveE2EError(f"{prefix}: {reply.get('error') or 'the server reported an error'}")
             return reply, out
+
+
+def _raised(exc: BaseException, source: Any) -> str:
+    """``raised Type: message at file:line`` (``called sys.exit(N) at ...``)
+    for the client's one line: the place is the last traceback frame in the
+    policy file ``source``, else the last frame of all (the server holds the
+    traceback; the client sees only this line)."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    try:
+        want = os.path.realpath(str(source))
+        mine = [f for f in frames if os.path.realpath(f.filename) == want]
+    except (OSError, ValueError, TypeError):
+        mine = []
+    frame = (mine or frames or [None])[-1]
+    where = f" at {frame.filename}:{frame.lineno}" if frame is not None else ""
+    if isinstance(exc, SystemExit):
+        return f"called sys.exit({exc.code!r}){where}"
+    text = one_line(exc, 200)
+    return f"raised {type(exc).__name__}" + (f": {text}" if text else "") + where

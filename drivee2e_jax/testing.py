@@ -48,7 +48,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from drivee2e_jax import hostapi
+from drivee2e_jax import hostapi, hostbridge
 from drivee2e_jax.errors import DriveE2EError, one_line
 from drivee2e_jax.observe import registry
 from drivee2e_jax.observe.sensors import SensorConfig, assets_axes, build_assets
@@ -65,8 +65,10 @@ __all__ = ["Problem", "Report", "check_policy", "check_policy_file", "check_init
 #: ``suite="tiny"``: the repository's four-scenario example suite.
 TINY_SUITE = EXAMPLE_SUITES["tiny"]
 DEFAULT_SUITE = "tiny"
-#: Observations per scenario, and simulator steps (along the log) between them.
-DEFAULT_STEPS = 3
+#: Observations per scenario (consecutive ``act`` calls: a policy's warm-up,
+#: history buffer or first action chunk fails within them), and simulator steps
+#: (along the log) between them.
+DEFAULT_STEPS = 10
 STEP_STRIDE = 5
 #: Tolerance of the jit / vmap comparisons: XLA fuses float ops differently
 #: from eager dispatch, and GPUs multiply float32 matrices in TF32 (~1e-3).
@@ -164,7 +166,9 @@ def check_policy(policy: Any, *, source: str | None = None, suite: str | Path | 
         info = _check_jax(policy, report, probe, jax.random.PRNGKey(seed))
     if info is not None:
         kind = "host policy" if host else "JAX policy"
-        what = f"{probe.batch} scenario(s) x {len(probe.obs)} step(s)" + ("" if host else ", jit + vmap")
+        t = len(probe.obs)
+        what = (f"{probe.batch} scenario(s) x {t} step(s) (act calls 0-{t - 1}, simulator steps 0-"
+                f"{(t - 1) * STEP_STRIDE} along the logs)" + ("" if host else ", jit + vmap"))
         report.summary = (f"{name}: {kind}, {info['action']}, state: {info['state']}, "
                           f"sensors: {', '.join(required) or 'none'}; {what}")
     return report
@@ -630,12 +634,15 @@ def _trace_problem(under: str, e: Exception, source: str | None = None) -> str:
 
 def _check_host(policy, report: Report, probe: _Probe) -> dict | None:
     at, nw, b, ids = policy.action_type, getattr(policy, "num_waypoints", None), probe.batch, probe.ids
-    obs = [hostapi.from_fields(jax.device_get(o)) for o in probe.obs]
+    fields = getattr(policy, "observation_fields", None)
+    fields = None if fields is None else tuple(fields)
+    # exactly what bench sends: the fields the policy asked for (hostbridge.observed)
+    obs = [hostapi.from_fields(jax.device_get(hostbridge.observed(o, fields))) for o in probe.obs]
 
     def reset():
         try:
             return True, policy.reset([dict(m) for m in probe.meta])
-        except Exception as e:  # noqa: BLE001 - a user's policy: one line
+        except (Exception, SystemExit) as e:  # noqa: BLE001 - a user's policy: one line
             report.add("reset", f"reset(meta) {raised_text(e, report.source)} (a batch of {b} scenarios)")
             return False, None
 
@@ -643,7 +650,7 @@ def _check_host(policy, report: Report, probe: _Probe) -> dict | None:
         where = report.source
         try:
             result = policy.act(o, state)
-        except Exception as e:  # noqa: BLE001
+        except (Exception, SystemExit) as e:  # noqa: BLE001
             report.add("act", f"act(obs, state) {raised_text(e, report.source)} (step {t}, a batch of {b} scenarios)")
             return None
         try:

@@ -233,3 +233,14 @@ def test_load_host_policy_errors_are_one_line(tmp_path, body, expected):
 def test_missing_file():
     with pytest.raises(DriveE2EError, match="policy file not found"):
         hostapi.load_host_policy("/nonexistent/p.py")
+
+
+def test_observation_arrays_are_writable_for_torch_from_numpy():
+    from types import SimpleNamespace
+
+    route = np.zeros((2, 5, 2), np.float32)
+    route.flags.writeable = False  # what a jax callback / jax.device_get hands over
+    obs = SimpleNamespace(**{f: None for f in hostapi.field_names(hostapi.Observation)})
+    obs.route = route
+    out = hostapi.from_fields(obs)
+    assert out.route.flags.writeable and np.array_equal(out.route, route)

@@ -217,3 +217,69 @@ def test_observation_fields_send_only_what_the_policy_reads(twin15, tmp_path):
     bad.write_text(FIELDS_PROBE.replace('("ego", "route")', '("ego", "radar")'))
     with pytest.raises(DriveE2EError, match="observation_fields is"):
         load_policy(bad)
+
+
+ROUTE_ONLY = '''
+import numpy as np
+from drivee2e_jax.hostapi import Controls, HostPolicy
+
+
+class RouteOnly(HostPolicy):
+    name = "route_only"
+    action_type = "controls"
+    observation_fields = ("route",)  # like docs/host_policies.md: no "ego"
+
+    def __init__(self, log):
+        self.log = log
+
+    def reset(self, meta):
+        return None
+
+    def act(self, obs, state):
+        b = obs.route.shape[0]
+        with open(self.log, "a") as f:
+            f.write(f"{obs.ego is None} {b}\\n")
+        z = np.zeros(b, np.float32)
+        return Controls(throttle=z, steer=z, brake=np.ones(b, np.float32)), state
+
+
+def make_policy(log):
+    return RouteOnly(log)
+'''
+
+
+def test_a_host_policy_that_does_not_observe_ego_runs_in_check_policy_and_bench(tmp_path):
+    from drivee2e_jax.testing import check_policy_file
+
+    path, log = tmp_path / "route_only.py", tmp_path / "seen.txt"
+    path.write_text(ROUTE_ONLY)
+    report = check_policy_file(f"{path}:log={log}", suite="tiny", batch=2, steps=2)
+    assert report.ok, list(report)
+    seen = log.read_text().split("\n")[:-1]
+    assert seen and all(line == "True 2" for line in seen)  # check-policy showed what bench sends: no ego
+    log.unlink()
+    result = evaluate(load_policy(f"{path}:log={log}"), load_suite("tiny"), "train", limit=2)
+    assert len(result.rows) == 2
+    seen = log.read_text().split("\n")[:-1]
+    assert seen and all(line == "True 2" for line in seen)
+
+
+def test_a_host_policy_calling_sys_exit_is_one_line_naming_its_file_and_line(tmp_path):
+    import types
+
+    import numpy as np
+
+    from drivee2e_jax import hostapi
+
+    path = tmp_path / "exiter.py"
+    path.write_text("import sys\nfrom drivee2e_jax.hostapi import HostPolicy\n\n\nclass P(HostPolicy):\n"
+                    "    name = 'exiter'\n    action_type = 'controls'\n    observation_fields = ('route',)\n\n"
+                    "    def reset(self, meta):\n        return None\n\n    def act(self, obs, state):\n"
+                    "        sys.exit(3)\n\n\npolicy = P()\n")
+    bridge = hostbridge.wrap(load_policy(path))
+    bridge.begin([{"scenario_id": "a"}, {"scenario_id": "b"}])
+    obs = types.SimpleNamespace(**{f: None for f in hostapi.field_names(hostapi.Observation)})
+    obs.route = np.zeros((2, 5, 2), np.float32)
+    action = bridge._host_act(obs)  # no SystemExit escapes: the rollout brakes, the failure is kept
+    assert np.shape(action.brake) == (2,)
+    assert bridge.failure == f"{path}, step 0: act called sys.exit(3) at {path}:14"

@@ -126,6 +126,9 @@ def test_a_policy_error_is_one_line_naming_the_file_and_step(policy_file, tmp_pa
         msg = _one_line(e)
         assert msg.startswith(f"remote policy at {server.address}: ")
         assert "tiny_policy.py" in msg and "step 1" in msg and "RuntimeError: kaboom at step 1" in msg
+        # the policy's own file:line reaches the client (the server's traceback is not all there is)
+        line = next(i for i, text in enumerate(policy_file.read_text().splitlines(), 1) if "kaboom" in text)
+        assert f"{os.path.realpath(policy_file)}:{line}" in msg or f"{policy_file}:{line}" in msg, msg
         # the server keeps serving, and the traceback went to its log
         pol.act(obs, pol.reset(meta_rows(2)))
         assert "Traceback" in server.stderr.read_text()

@@ -450,3 +450,36 @@ def test_checked_params_passes_good_policies_and_keeps_given_params(probe_obs):
         assert check_traceable(pol, obs, None, key).ok
     given = {"w": np.ones(2, np.float32)}
     assert checked_params(pol, obs, key, given) is given
+
+
+def test_default_steps_catch_a_failure_after_the_warm_up(tmp_path):
+    from drivee2e_jax.cli import build_parser
+    from drivee2e_jax.testing import DEFAULT_STEPS, check_policy_file
+
+    path = tmp_path / "late.py"
+    path.write_text(textwrap.dedent("""
+        import numpy as np
+        from drivee2e_jax.hostapi import Controls, HostPolicy
+
+
+        class Late(HostPolicy):
+            name = "late"
+            action_type = "controls"
+            observation_fields = ("route",)
+
+            def reset(self, meta):
+                return 0
+
+            def act(self, obs, state):
+                if state == 3:  # after a 3-call warm-up (the old default missed it)
+                    raise RuntimeError("buffer full")
+                z = np.zeros(obs.route.shape[0], np.float32)
+                return Controls(throttle=z, steer=z, brake=z), state + 1
+
+
+        policy = Late()
+    """))
+    report = check_policy_file(path, suite="tiny", batch=2)
+    assert not report.ok
+    assert any("buffer full" in str(p) and "step 3" in str(p) for p in report), [str(p) for p in report]
+    assert build_parser().parse_args(["check-policy", "x.py"]).steps == DEFAULT_STEPS

@@ -41,7 +41,10 @@ def add_parser(subparsers) -> None:
                    help="tiny (the 4-scenario example suite shipped in the package), twin15, or a suite folder "
                         "(default: tiny)")
     p.add_argument("--batch", type=int, default=4, metavar="N", help="scenarios to observe (default: 4)")
-    p.add_argument("--steps", type=int, default=3, metavar="N", help="observations per scenario (default: 3)")
+    # 10 = testing.DEFAULT_STEPS (not imported here: parsing stays free of JAX; a test pins the two equal)
+    p.add_argument("--steps", type=int, default=10, metavar="N",
+                   help="consecutive observations (act calls) per scenario, 5 simulator steps apart "
+                        "(default: 10: covers a policy's warm-up / first action chunk)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the policy's keys (default: 0)")
     p.set_defaults(func=run)
 

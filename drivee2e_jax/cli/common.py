@@ -98,7 +98,15 @@ def unexpected_message(exc: BaseException) -> str:
 
 
 def print_error(message: str) -> None:
-    print(f"{PROG}: error: {message}", file=sys.stderr)
+    """``drivee2e: error: MESSAGE`` on stderr, on a line of its own: open tqdm
+    bars (a bench interrupted by a remote policy's error) are cleared first and
+    redrawn after it instead of the line being glued to the bar."""
+    line = f"{PROG}: error: {message}"
+    tqdm_module = sys.modules.get("tqdm")  # only loaded when a bar may be open
+    if tqdm_module is not None and getattr(tqdm_module.tqdm, "_instances", None):
+        tqdm_module.tqdm.write(line, file=sys.stderr)
+    else:
+        print(line, file=sys.stderr)
 
 
 def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace, *, debug: bool) -> int:

@@ -117,3 +117,19 @@ def test_check_policy_names_the_line(tmp_path, capsys):
     out = capsys.readouterr().out.strip()
     assert out.startswith(f"{policy}: act(params, obs, state, key) raised ValueError: no route at {policy}:{line_no} ")
     assert "\n" not in out
+
+
+def test_the_error_line_is_not_glued_to_an_open_progress_bar(capsys):
+    import sys
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=10, desc="closed-loop", file=sys.stderr)
+    bar.update(3)
+    try:
+        common.print_error("remote://127.0.0.1:5555, step 4: act raised ValueError: x at pol.py:9")
+    finally:
+        bar.close()
+    err = capsys.readouterr().err
+    lines = [seg for chunk in err.split("\n") for seg in chunk.split("\r")]
+    assert any(seg.startswith("drivee2e: error: remote://") for seg in lines), repr(err)
