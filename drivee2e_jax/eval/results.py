@@ -294,6 +294,10 @@ class RunDir:
     def _check_policy(self, name: str, fingerprint: dict | None) -> bool:
         """True when ``name``'s results can be resumed; DriveE2EError when its file
         was written for a different policy."""
+        theirs = {str(p) for p, (f, _) in self.files.items() if f.name == self.policy_file(name).name} - {name}
+        if theirs:
+            raise DriveE2EError(f"[{name}] its result file {self.policy_file(name)} already holds policy "
+                                f"{sorted(theirs)[0]!r} (both names map to one file); rename one policy (name=...)")
         if name not in self.files or fingerprint is None:
             return False
         f, data = self.files[name]
@@ -309,8 +313,7 @@ class RunDir:
         return self.path / "policies"
 
     def policy_file(self, policy: str) -> Path:
-        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in policy)
-        return self.policy_dir / f"{safe}.json"
+        return self.policy_dir / f"{policy_file_stem(policy)}.json"
 
     def done(self, policy: str) -> bool:
         """The policy's results are in the folder and were made by the same policy."""
@@ -359,6 +362,24 @@ class RunDir:
 def _plain(obj):
     """``obj`` as JSON would read it back (tuples -> lists, numpy -> Python)."""
     return json.loads(json.dumps(obj, default=json_default))
+
+
+def policy_file_stem(policy: str) -> str:
+    """The file name (without ``.json``) of ``policy``'s results: characters other
+    than letters, digits, ``-_.`` become ``_``, so two names can share a file
+    (``x/y`` and ``x_y``); ``check_policy_file_names`` refuses that in a run."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in policy)
+
+
+def check_policy_file_names(names: Iterable[str]) -> None:
+    """DriveE2EError (one line) when two policy names map to one result file."""
+    seen: dict[str, str] = {}
+    for n in names:
+        stem = policy_file_stem(n)
+        if stem in seen and seen[stem] != n:
+            raise DriveE2EError(f"policy names {seen[stem]!r} and {n!r} map to the same result file "
+                                f"policies/{policy_file_stem(n)}.json; rename one (name=...)")
+        seen[stem] = n
 
 
 def read_policy_file(path: Path) -> dict:

@@ -352,3 +352,13 @@ def test_two_identical_runs_give_byte_identical_tables(suite_dir, tmp_path, monk
 
     cols, joined = load_rows(a / "scenarios.csv")  # the report and sweeps read the time back from timing.json
     assert "eval_time_s" in cols and all(r["eval_time_s"] > 0 for r in joined)
+
+
+@pytest.mark.parametrize("a,b", [("x/y", "x_y"), ("a b", "a_b")])
+def test_policy_names_sharing_a_result_file_are_refused(suite_dir, tmp_path, capsys, a, b):
+    out = tmp_path / "run"
+    rc = main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress",
+               "--policy", f"log_replay:name={a}", "--policy", f"stop:name={b}"])
+    err = capsys.readouterr().err
+    assert rc != 0 and "map to the same result file" in err and "Traceback" not in err
+    assert not (out / "policies").exists() or not list((out / "policies").glob("*.json"))
