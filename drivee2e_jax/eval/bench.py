@@ -28,6 +28,7 @@ from drivee2e_jax.eval.openloop import ShortHorizonError, evaluate_openloop
 from drivee2e_jax.eval.report import write_report
 from drivee2e_jax.eval.results import (
     RunDir,
+    check_policy_file_names,
     event_key,
     package_version,
     policy_fingerprint,
@@ -282,6 +283,7 @@ def _load_policies(cfg: BenchConfig):
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise DriveE2EError(f"two policies are named {sorted(dup)[0]!r}; policy names must be unique in a run")
+    check_policy_file_names(names)
     return policies, fingerprints, policy_kwargs, names
 
 

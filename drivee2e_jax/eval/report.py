@@ -40,6 +40,7 @@ import json
 import math
 from pathlib import Path
 
+from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval import plots
 from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, CI_MIN_N, CI_RESAMPLES, CI_SEED, summarize
 from drivee2e_jax.files import atomic_write_text
@@ -120,10 +121,16 @@ def write_report(run_dir: Path) -> Path:
 
 
 def load_rows(path: Path) -> tuple[list[str], list[dict]]:
-    """``scenarios.csv`` as (columns, rows); numeric columns become floats (blank = NaN)."""
+    """``scenarios.csv`` as (columns, rows); numeric columns become floats (blank = NaN).
+
+    The wall-clock columns of ``timing.json`` beside it (results.TIMING_COLUMNS,
+    kept out of the CSV so it is deterministic) are joined back onto the rows
+    by (policy, scenario_id, repetition).
+    """
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         columns, rows = list(reader.fieldnames or []), list(reader)
+    _join_timing(Path(path).parent / "timing.json", columns, rows)
     for c in columns:
         if c in CATEGORICAL or c.endswith("_id"):
             continue
@@ -132,6 +139,28 @@ def load_rows(path: Path) -> tuple[list[str], list[dict]]:
             for r, v in zip(rows, vals):
                 r[c] = float(v) if v else math.nan
     return columns, rows
+
+
+def _join_timing(path: Path, columns: list[str], rows: list[dict]) -> None:
+    """Add ``timing.json``'s columns to ``rows`` in place (missing file: nothing)."""
+    if not path.is_file():
+        return
+    try:
+        timing = json.loads(path.read_text(encoding="utf-8"))["rows"]
+        by_key = {(str(t["policy"]), str(t["scenario_id"]), int(float(t.get("repetition") or 0))): t
+                  for t in timing}
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise DriveE2EError(f"{path}: expected {{\"rows\": [{{\"policy\", \"scenario_id\", \"repetition\", "
+                            f"...}}]}}; delete it and rerun the bench to rewrite it") from None
+    added: list[str] = []
+    for r in rows:
+        t = by_key.get((str(r.get("policy")), str(r.get("scenario_id")), int(float(r.get("repetition") or 0))))
+        for k, v in (t or {}).items():
+            if k not in ("policy", "scenario_id", "repetition"):
+                r[k] = "" if v is None else str(v)
+                if k not in columns and k not in added:
+                    added.append(k)
+    columns += added
 
 
 def classify_columns(columns: list[str], rows: list[dict]) -> tuple[list[str], list[str]]:

@@ -7,7 +7,12 @@ Layout of ``results/<run>/``::
                              "fingerprint" and "provenance" (below)
     policies/<policy>.json   one finished policy: rows, events, warnings,
                              "fingerprint", "provenance"; the unit of resumption
-    scenarios.csv / .json    one row per (policy, scenario) of EVERY policy file
+    scenarios.csv / .json    one row per (policy, scenario) of EVERY policy file,
+                             without wall-clock columns: two identical runs give
+                             byte-identical tables (check with ``cmp``)
+    timing.json              the wall-clock columns (``TIMING_COLUMNS``) of those
+                             rows: {"rows": [{"policy", "scenario_id",
+                             "repetition", "eval_time_s"}, ...]}, same order
     summary.json             aggregates per policy (every policy file)
     report.md, plots/, leaderboard/<policy>.json   made from the same files
     .lock                    held by the run writing the folder
@@ -111,8 +116,12 @@ BASE_COLUMNS = (
     "success",
     "status",
     "episode_s",
-    "eval_time_s",
 )
+
+#: Wall-clock columns of a result row: kept in policy files and ``timing.json``,
+#: left out of scenarios.csv/.json so that those are deterministic.
+TIMING_COLUMNS = ("eval_time_s",)
+TIMING_FILE = "timing.json"
 
 
 def rows_to_csv(rows: list[dict], columns: Iterable[str]) -> str:
@@ -135,7 +144,7 @@ def _csv_value(v):
 
 
 #: Files the combined tables consist of (rewritten after every run; removed by ``--force``).
-TABLE_FILES = ("scenarios.csv", "scenarios.json", "summary.json", "report.md")
+TABLE_FILES = ("scenarios.csv", "scenarios.json", "timing.json", "summary.json", "report.md")
 #: Folders of per-policy outputs derived from the policy files (removed by ``--force``).
 TABLE_FOLDERS = (("leaderboard", "*.json"), ("plots", "*.png"))
 #: run.json keys not compared on resume.
@@ -285,6 +294,10 @@ class RunDir:
     def _check_policy(self, name: str, fingerprint: dict | None) -> bool:
         """True when ``name``'s results can be resumed; DriveE2EError when its file
         was written for a different policy."""
+        theirs = {str(p) for p, (f, _) in self.files.items() if f.name == self.policy_file(name).name} - {name}
+        if theirs:
+            raise DriveE2EError(f"[{name}] its result file {self.policy_file(name)} already holds policy "
+                                f"{sorted(theirs)[0]!r} (both names map to one file); rename one policy (name=...)")
         if name not in self.files or fingerprint is None:
             return False
         f, data = self.files[name]
@@ -300,8 +313,7 @@ class RunDir:
         return self.path / "policies"
 
     def policy_file(self, policy: str) -> Path:
-        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in policy)
-        return self.policy_dir / f"{safe}.json"
+        return self.policy_dir / f"{policy_file_stem(policy)}.json"
 
     def done(self, policy: str) -> bool:
         """The policy's results are in the folder and were made by the same policy."""
@@ -327,24 +339,47 @@ class RunDir:
 
     def write_tables(self, policies: list[str], summary: dict, count_columns: Iterable[str]) -> None:
         """Combine finished policy files into scenarios.csv/.json and summary.json."""
-        rows, rows_json = [], []
+        rows, rows_json, timing = [], [], []
         for p in policies:
             data = self.load_policy(p)
-            for r in data["rows"]:
+            for full in data["rows"]:
+                r = {k: v for k, v in full.items() if k not in TIMING_COLUMNS}
                 rows.append(r)
                 rows_json.append({**r, "events": data["events"].get(event_key(r), [])})
+                timing.append({"policy": r.get("policy"), "scenario_id": r.get("scenario_id"),
+                               "repetition": r.get("repetition") or 0,
+                               **{k: full[k] for k in TIMING_COLUMNS if k in full}})
         cols = list(BASE_COLUMNS) + [c for c in count_columns if c not in BASE_COLUMNS]
         # Then every other per-scenario column (fine-grained, open-loop ...) in first-seen order.
         for r in rows:
             cols += [k for k in r if k not in cols]
         atomic_write_text(self.path / "scenarios.csv", rows_to_csv(rows, cols))
         atomic_write_json(self.path / "scenarios.json", rows_json)
+        atomic_write_json(self.path / TIMING_FILE, {"rows": timing})
         atomic_write_json(self.path / "summary.json", summary)
 
 
 def _plain(obj):
     """``obj`` as JSON would read it back (tuples -> lists, numpy -> Python)."""
     return json.loads(json.dumps(obj, default=json_default))
+
+
+def policy_file_stem(policy: str) -> str:
+    """The file name (without ``.json``) of ``policy``'s results: characters other
+    than letters, digits, ``-_.`` become ``_``, so two names can share a file
+    (``x/y`` and ``x_y``); ``check_policy_file_names`` refuses that in a run."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in policy)
+
+
+def check_policy_file_names(names: Iterable[str]) -> None:
+    """DriveE2EError (one line) when two policy names map to one result file."""
+    seen: dict[str, str] = {}
+    for n in names:
+        stem = policy_file_stem(n)
+        if stem in seen and seen[stem] != n:
+            raise DriveE2EError(f"policy names {seen[stem]!r} and {n!r} map to the same result file "
+                                f"policies/{policy_file_stem(n)}.json; rename one (name=...)")
+        seen[stem] = n
 
 
 def read_policy_file(path: Path) -> dict:

@@ -22,7 +22,7 @@ from tests.helpers import sim_scenarios as ss
 from tests.helpers.road3 import bench as _bench
 
 REQUIRED = ("policy", "scenario_id", "split", "intersection_id", "behavior", "route_completion", "infraction_score",
-            "driving_score", "success", "status", "eval_time_s", "collisions_vehicle", "red_light")
+            "driving_score", "success", "status", "collisions_vehicle", "red_light")
 
 
 def test_bench_writes_tables_and_resumes(suite_dir, tmp_path, capsys, monkeypatch):
@@ -334,3 +334,31 @@ def test_bench_refuses_a_folder_of_another_collision_mode_or_agent_model(suite_d
     assert "collisions" not in json.loads((out / "run.json").read_text())
     rows = list(csv.DictReader((out / "scenarios.csv").open()))
     assert len(rows) == 2 and "driving_score_at_fault" in rows[0]
+
+
+def test_two_identical_runs_give_byte_identical_tables(suite_dir, tmp_path, monkeypatch):
+    """Wall-clock time stays out of scenarios.csv/.json (in timing.json), so determinism is a `cmp`."""
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _bench(suite_dir, a) == 0 and _bench(suite_dir, b) == 0
+    for name in ("scenarios.csv", "scenarios.json"):
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    assert "eval_time_s" not in (a / "scenarios.csv").read_text()
+    timing = json.loads((a / "timing.json").read_text())["rows"]
+    rows = list(csv.DictReader((a / "scenarios.csv").open()))
+    assert [(t["policy"], t["scenario_id"]) for t in timing] == [(r["policy"], r["scenario_id"]) for r in rows]
+    assert all(t["eval_time_s"] > 0 for t in timing)
+    from drivee2e_jax.eval.report import load_rows
+
+    cols, joined = load_rows(a / "scenarios.csv")  # the report and sweeps read the time back from timing.json
+    assert "eval_time_s" in cols and all(r["eval_time_s"] > 0 for r in joined)
+
+
+@pytest.mark.parametrize("a,b", [("x/y", "x_y"), ("a b", "a_b")])
+def test_policy_names_sharing_a_result_file_are_refused(suite_dir, tmp_path, capsys, a, b):
+    out = tmp_path / "run"
+    rc = main(["bench", "--suite", str(suite_dir), "--out", str(out), "--no-progress",
+               "--policy", f"log_replay:name={a}", "--policy", f"stop:name={b}"])
+    err = capsys.readouterr().err
+    assert rc != 0 and "map to the same result file" in err and "Traceback" not in err
+    assert not (out / "policies").exists() or not list((out / "policies").glob("*.json"))

@@ -154,3 +154,14 @@ def test_provenance_records_portable_paths(tmp_path):
     assert {"drivee2e_version", "time_utc", "command", "suite", "backend"} <= set(prov)
     assert prov["suite"] == str(tmp_path / "suites" / "s")  # not a folder (yet): as given
     assert git_state(tmp_path / "not_a_checkout" / "drivee2e_jax") == {}
+
+
+def test_a_later_policy_whose_name_shares_a_file_is_refused(tmp_path):
+    """'x/y' wrote policies/x_y.json; a later run's 'x_y' must not overwrite (and silently drop) it."""
+    fp = policy_fingerprint(_policy(tmp_path), {})
+    with RunDir(tmp_path / "r", INFO, policies={"x/y": fp}) as run:
+        _finish(run, "x/y")
+    with pytest.raises(DriveE2EError, match=r"\[x_y\] its result file .*x_y.json already holds policy 'x/y'"):
+        RunDir(tmp_path / "r", INFO, policies={"x_y": fp})
+    with RunDir(tmp_path / "r", INFO, policies={"x/y": fp}) as run:  # the original still resumes
+        assert run.done("x/y")

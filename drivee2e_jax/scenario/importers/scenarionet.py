@@ -184,18 +184,73 @@ def _bounded_array_type(claim) -> type:
     return type("ndarray", (np.ndarray,), {"__new__": new, "__setstate__": setstate, "__module__": __name__})
 
 
-def _plain_arrays(obj: Any, kind: type) -> Any:
-    """``obj`` with every ``kind`` array (nested in dicts, lists, tuples) viewed as a plain ndarray."""
-    if isinstance(obj, kind):
-        return obj.view(np.ndarray)
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            obj[k] = _plain_arrays(v, kind)
-    elif isinstance(obj, list):
-        obj[:] = [_plain_arrays(v, kind) for v in obj]
-    elif isinstance(obj, tuple):
-        return tuple(_plain_arrays(v, kind) for v in obj)
-    return obj
+#: Deepest nesting of containers :func:`_plain_arrays` accepts (a ScenarioNet pickle nests ~5 deep).
+MAX_PICKLE_DEPTH = 64
+#: Most objects the loaded pickle may hold when every shared reference is
+#: counted as a copy (what the importer's later walks will visit).
+MAX_PICKLE_EXPANDED = 50_000_000
+
+
+def _plain_arrays(obj: Any, kind: type, source: str = "<pickle>") -> Any:
+    """``obj`` with every ``kind`` array (nested in dicts, lists, tuples) viewed as a plain ndarray.
+
+    Linear in the number of distinct objects: each container is visited once
+    (memo by ``id``, so shared references -- a "billion laughs" pickle of lists
+    that all point to one list -- cost one visit, and the shared object stays
+    shared), nesting deeper than ``MAX_PICKLE_DEPTH`` is a one-line
+    DriveE2EError, as is a reference cycle through a tuple. The size the
+    object would have with every shared reference copied is counted too (memo:
+    linear) and refused above ``MAX_PICKLE_EXPANDED``, so the importer's later
+    walks over the tree (``np.asarray`` on nested lists) stay bounded.
+    """
+    done: dict[int, Any] = {}
+    expanded: dict[int, int] = {}  # id -> objects in the subtree, shared references counted as copies
+    active: set[int] = set()
+
+    def size(o: Any) -> int:
+        return expanded.get(id(o), 1) if isinstance(o, (dict, list, tuple)) else 1
+
+    def walk(o: Any, depth: int) -> Any:
+        if isinstance(o, kind):
+            key = id(o)
+            if key not in done:
+                done[key] = o.view(np.ndarray)
+            return done[key]
+        if not isinstance(o, (dict, list, tuple)):
+            return o
+        key = id(o)
+        if key in done:
+            return done[key]
+        if depth > MAX_PICKLE_DEPTH:
+            raise DriveE2EError(f"{source}: containers nested deeper than {MAX_PICKLE_DEPTH} levels "
+                                f"(not a ScenarioNet pickle)")
+        if key in active:  # a cycle: a list/dict reached again from inside itself
+            if isinstance(o, tuple):
+                raise DriveE2EError(f"{source}: a tuple that contains itself (not a ScenarioNet pickle)")
+            return o  # fixed in place by the outer visit
+        active.add(key)
+        if isinstance(o, dict):
+            done[key] = o
+            for k, v in o.items():
+                o[k] = walk(v, depth + 1)
+            out = o
+        elif isinstance(o, list):
+            done[key] = o
+            o[:] = [walk(v, depth + 1) for v in o]
+            out = o
+        else:
+            out = tuple(walk(v, depth + 1) for v in o)
+            done[key] = out
+        active.discard(key)
+        children = out.values() if isinstance(out, dict) else out
+        n = 1 + sum(size(v) for v in children) + (len(out) if isinstance(out, dict) else 0)
+        if n > MAX_PICKLE_EXPANDED:
+            raise DriveE2EError(f"{source}: shared references expand to more than {MAX_PICKLE_EXPANDED} "
+                                f"objects (a 'billion laughs' pickle, not a ScenarioNet pickle)")
+        expanded[key] = expanded[id(out)] = n
+        return out
+
+    return walk(obj, 0)
 
 
 def safe_load(path: Path) -> Any:
@@ -212,7 +267,7 @@ def safe_load(path: Path) -> Any:
             pass
         unpickler = SafeUnpickler(io.BytesIO(data), source=str(path),
                                   budget_bytes=ALLOC_FACTOR * len(data) + ALLOC_SLACK_BYTES)
-        return _plain_arrays(unpickler.load(), unpickler._array_type)
+        return _plain_arrays(unpickler.load(), unpickler._array_type, str(path))
     except DriveE2EError:
         raise
     except MemoryError:

@@ -193,6 +193,58 @@ def test_loaded_arrays_are_plain_ndarrays(tmp_path):
     np.testing.assert_array_equal(pos, pickle.loads(p.read_bytes())["tracks"]["ego"]["state"]["position"])
 
 
+def _laughs(levels: int = 45) -> bytes:
+    x: list = []
+    for _ in range(levels):
+        x = [x, x]  # every level points twice at the same list: 2**45 paths, ~300 bytes
+    return pickle.dumps({"id": "a", "metadata": {"sdc_id": "1", "ts": x}, "tracks": {"1": {"state": {"position": x}}}},
+                        protocol=2)
+
+
+def test_billion_laughs_pickle_is_refused_quickly(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    p = tmp_path / "laughs.pkl"
+    p.write_bytes(_laughs())
+    assert len(p.read_bytes()) < 600
+    code = ("import sys; from drivee2e_jax.scenario.importers import scenarionet\n"
+            "try:\n    scenarionet.safe_load(sys.argv[1])\nexcept Exception as e:\n    print(e); sys.exit(2)\n")
+    t0 = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", code, str(p)], capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[3])})
+    elapsed = time.perf_counter() - t0
+    assert out.returncode == 2, out.stderr
+    assert "billion laughs" in out.stdout and str(p) in out.stdout
+    assert elapsed < 20  # includes interpreter + numpy start-up; the walk itself is milliseconds
+
+
+def test_walk_is_linear_and_keeps_sharing(tmp_path):
+    import time
+
+    x: list = []
+    for _ in range(20):  # 2**20 paths: accepted, but must cost ~20 visits, not a million
+        x = [x, x]
+    arr = np.arange(4.0)
+    p = tmp_path / "shared.pkl"
+    p.write_bytes(pickle.dumps({"a": x, "b": [arr, arr]}, protocol=2))
+    t0 = time.perf_counter()
+    raw = scenarionet.safe_load(p)
+    assert time.perf_counter() - t0 < 0.5
+    assert raw["a"][0] is raw["a"][1]
+    assert type(raw["b"][0]) is np.ndarray and raw["b"][0] is raw["b"][1]
+
+
+def test_too_deep_nesting_is_refused(tmp_path):
+    x: list = []
+    for _ in range(scenarionet.MAX_PICKLE_DEPTH + 5):
+        x = [x]
+    p = write_pkl(tmp_path / "deep.pkl", {"a": x})
+    with pytest.raises(DriveE2EError, match="nested deeper than"):
+        scenarionet.safe_load(p)
+
+
 @pytest.mark.parametrize("payload", [
     ("builtins", "eval"), ("subprocess", "Popen"), ("numpy", "load"), ("numpy.lib.npyio", "load"),
 ])
