@@ -129,6 +129,8 @@ WEIGHTS = {
     "nuplan_speed_limit_compliance": 4.0,
     "nuplan_ego_is_comfortable": 2.0,
 }
+#: Weight of a scored metric not listed in ``WEIGHTS`` (nuPlan's ``default: 1.0``).
+DEFAULT_WEIGHT = 1.0
 MULTIPLIERS = (
     "nuplan_no_ego_at_fault_collisions",
     "nuplan_drivable_area_compliance",
@@ -488,14 +490,27 @@ def comfort_score(accel, lat_accel, yaw, t) -> float:
     return float(ok)
 
 
-def combine(columns: dict[str, float]) -> float:
+def combine(columns: dict[str, float | None]) -> float:
     """``WeightedAverageMetricAggregator._compute_scenario_score``: product of
-    the multiplier metrics times the weighted mean of the others (None
-    columns are skipped and the weights renormalised; 0 if none is left)."""
-    factor = float(np.prod([columns[k] for k in MULTIPLIERS if columns.get(k) is not None]))
-    pairs = [(w, columns[k]) for k, w in WEIGHTS.items() if columns.get(k) is not None]
-    total = sum(w for w, _ in pairs)
-    return factor * (sum(w * v for w, v in pairs) / total if total else 0.0)
+    the multiplier metrics times the weighted mean of the others.
+
+    Every column except ``nuplan_score`` and None values takes part, as in
+    nuplan-devkit (``_compute_scenario_score`` iterates over all metric columns
+    except its excluded keys, skips None); a metric missing from ``WEIGHTS``
+    gets ``DEFAULT_WEIGHT`` (``_get_metric_weight``: ``metric_weights['default']``,
+    1.0 in ``closed_loop_*_weighted_average.yaml``). 0 if no weight is left.
+    """
+    factor, num, total = 1.0, 0.0, 0.0
+    for k, v in columns.items():
+        if k == "nuplan_score" or v is None:
+            continue
+        if k in MULTIPLIERS:
+            factor *= float(v)
+        else:
+            w = WEIGHTS.get(k, DEFAULT_WEIGHT)
+            num += w * float(v)
+            total += w
+    return factor * (num / total if total else 0.0)
 
 
 def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
