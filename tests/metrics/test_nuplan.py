@@ -352,3 +352,26 @@ def test_combine_default_weight_for_unlisted_metric():
     assert nuplan.combine(cols) == pytest.approx(0.5 * 11.0 / 17.0, abs=1e-12)
     without = {k: v for k, v in cols.items() if k != "nuplan_unlisted_metric"}
     assert nuplan.combine(without) == pytest.approx(0.5 * 11.0 / 16.0, abs=1e-12)
+
+
+def test_static_obstacle_contact_while_ego_stopped_is_not_at_fault():
+    """nuplan-devkit ``nuplan/planning/metrics/utils/collision_utils.py``, ``get_collision_type``:
+    ego speed <= stopped_speed_threshold (5e-2 m/s) -> STOPPED_EGO_COLLISION, which
+    ``no_ego_at_fault_collisions.py`` (``classify_at_fault_collisions``) never counts; a static
+    object hit by a moving ego is STOPPED_TRACK_COLLISION, at fault, an object collision. The
+    type is fixed at the first contact tick (``find_new_collisions`` registers the token then).
+
+    Worked case (NAVSIM's ``no_at_fault_collision`` applies the same rule): contact 1 starts while
+    the ego stands (0.0 m/s) and speeds up while touching -> not counted; contact 2 starts at
+    2 m/s -> one object collision; with the ego stopped at both contacts none counts (score 1).
+    """
+    n = 8
+    no_agent = (np.zeros(n, bool), np.zeros(n, int), np.zeros(n, int), np.zeros(n, bool))
+    lay = np.array([0, 1, 1, 0, 0, 1, 1, 0], bool)
+    speed = np.array([0.0, 0.0, 1.0, 1.0, 2.0, 2.0, 2.0, 2.0])
+    assert nuplan.collision_counts(*no_agent, lay, speed) == (0, 0, 1)
+    stopped = np.where(lay, 0.01, 1.0)
+    assert nuplan.collision_counts(*no_agent, lay, stopped) == (0, 0, 0)
+    assert nuplan.collision_score(*nuplan.collision_counts(*no_agent, lay, stopped)) == 1.0
+    ticks = nuplan._first_fault_ticks(no_agent[0], no_agent[1], no_agent[3], lay, speed)
+    assert np.flatnonzero(ticks).tolist() == [5]
