@@ -49,7 +49,9 @@ centre is in, summed over 1 s windows   heading, only when no lane running its w
                                         windows sum these (travel with the lane never offsets)
 collision classes VRU (pedestrian,      PEDESTRIAN, CYCLIST -> VRU; every other ``Category`` ->
 bicycle), vehicle, object               vehicle; layout contacts (``layout_hit`` rising edges) ->
-                                        object, always at fault
+                                        object, at fault only if the ego moves > 0.05 m/s at
+                                        the first contact tick (stopped ego: not at fault, as
+                                        nuPlan); no obstacle id, so re-touching counts again
 comfort: ``center_acceleration_2d``    ``ego_comfort_inputs``: nuPlan's bicycle-model state rebuilt
 x / y for the lon / lat bounds, the     from the step log: rear-axle acceleration (a_r, 0) with a_r
 rear-axle acceleration's magnitude      = d/dt (speed * cos beta) (no lateral term, as nuPlan's
@@ -95,6 +97,9 @@ TTC_HORIZON_S = 3.0
 TTC_STEPS = 29
 #: TTC must be strictly above this, s (``least_min_ttc``).
 TTC_LEAST_MIN_S = 0.95
+#: ``get_collision_type`` (utils/collision_utils.py) stopped_speed_threshold: a contact
+#: while the ego is at or below it is STOPPED_EGO_COLLISION (not at fault), m/s.
+COLLISION_STOPPED_SPEED = 5e-2
 #: Ego at or below this speed is "stopped": TTC not evaluated (``compute_time_to_collision``), m/s.
 TTC_STOPPED_SPEED = 5e-3
 #: ``is_agent_ahead`` / ``is_agent_behind`` angle tolerances (idm/utils.py), rad.
@@ -133,6 +138,8 @@ WEIGHTS = {
     "nuplan_speed_limit_compliance": 4.0,
     "nuplan_ego_is_comfortable": 2.0,
 }
+#: Weight of a scored metric not listed in ``WEIGHTS`` (nuPlan's ``default: 1.0``).
+DEFAULT_WEIGHT = 1.0
 MULTIPLIERS = (
     "nuplan_no_ego_at_fault_collisions",
     "nuplan_drivable_area_compliance",
@@ -296,16 +303,34 @@ def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agen
 # --------------------------------------------------------------------------
 
 
-def collision_counts(agent_hit, agent_id, agent_category, at_fault, layout_hit) -> tuple[int, int, int]:
+def _new_layout_faults(layout_hit, speed) -> np.ndarray:
+    """(n,) bool: rising edges of ``layout_hit`` at which the ego moves.
+
+    A static obstacle is a stopped track: ``get_collision_type``
+    (utils/collision_utils.py) makes the contact STOPPED_EGO_COLLISION (not at
+    fault) when the ego speed <= ``COLLISION_STOPPED_SPEED``, else
+    STOPPED_TRACK_COLLISION (at fault). The type is fixed at the first tick of
+    the contact (``find_new_collisions`` registers the track then).
+    Approximation: obstacles carry no id here, so a new contact after the ego
+    left an obstacle counts again (nuPlan: once per track).
+    """
+    lay = np.asarray(layout_hit, dtype=bool)
+    rise = lay & ~np.concatenate([[False], lay[:-1]])
+    return rise & (np.asarray(speed, dtype=np.float64) > COLLISION_STOPPED_SPEED)
+
+
+def collision_counts(agent_hit, agent_id, agent_category, at_fault, layout_hit,
+                     speed=None) -> tuple[int, int, int]:
     """At-fault collisions (VRU, vehicle, object) over the active ticks.
 
     ``find_new_collisions`` + ``classify_at_fault_collisions``
     (no_ego_at_fault_collisions.py): each track is counted once, at its
     first contact tick, if that contact is at fault; ``get_fault_type_statistics``
     (utils/collision_utils.py) groups by type. Layout contacts: one per
-    rising edge of ``layout_hit``, always at fault, as objects.
+    rising edge of ``layout_hit`` at which the ego moves (``_new_layout_faults``),
+    as objects; ``speed`` None (legacy callers) counts every rising edge.
 
-    Args: (n,) arrays of the active ticks (bool, int, int, bool, bool).
+    Args: (n,) arrays of the active ticks (bool, int, int, bool, bool, float m/s).
     """
     seen: set[int] = set()
     vru = veh = 0
@@ -318,8 +343,9 @@ def collision_counts(agent_hit, agent_id, agent_category, at_fault, layout_hit) 
                 vru += 1
             else:
                 veh += 1
-    lay = np.asarray(layout_hit, dtype=bool)
-    obj = int(np.sum(lay & ~np.concatenate([[False], lay[:-1]])))
+    if speed is None:
+        speed = np.full(len(layout_hit), np.inf)
+    obj = int(np.sum(_new_layout_faults(layout_hit, speed)))
     return vru, veh, obj
 
 
@@ -332,7 +358,7 @@ def collision_score(vru: int, veh: int, obj: int) -> float:
                                                                           strict=True)]))
 
 
-def _first_fault_ticks(agent_hit, agent_id, at_fault, layout_hit) -> np.ndarray:
+def _first_fault_ticks(agent_hit, agent_id, at_fault, layout_hit, speed) -> np.ndarray:
     """(n,) bool: ticks with a NEW at-fault collision (nuPlan's
     ``timestamps_at_fault_collisions``; their TTC is 0)."""
     out = np.zeros(len(agent_hit), dtype=bool)
@@ -341,8 +367,7 @@ def _first_fault_ticks(agent_hit, agent_id, at_fault, layout_hit) -> np.ndarray:
         if hit and int(tid) not in seen:
             seen.add(int(tid))
             out[i] = bool(fault)
-    lay = np.asarray(layout_hit, dtype=bool)
-    return out | (lay & ~np.concatenate([[False], lay[:-1]]))
+    return out | _new_layout_faults(layout_hit, speed)
 
 
 def ttc_score(ttc_s, speed, new_fault) -> float:
@@ -571,14 +596,27 @@ def comfort_score(accel, lat_accel, yaw, t, accel_magnitude=None) -> float:
     return float(ok)
 
 
-def combine(columns: dict[str, float]) -> float:
+def combine(columns: dict[str, float | None]) -> float:
     """``WeightedAverageMetricAggregator._compute_scenario_score``: product of
-    the multiplier metrics times the weighted mean of the others (None
-    columns are skipped and the weights renormalised; 0 if none is left)."""
-    factor = float(np.prod([columns[k] for k in MULTIPLIERS if columns.get(k) is not None]))
-    pairs = [(w, columns[k]) for k, w in WEIGHTS.items() if columns.get(k) is not None]
-    total = sum(w for w, _ in pairs)
-    return factor * (sum(w * v for w, v in pairs) / total if total else 0.0)
+    the multiplier metrics times the weighted mean of the others.
+
+    Every column except ``nuplan_score`` and None values takes part, as in
+    nuplan-devkit (``_compute_scenario_score`` iterates over all metric columns
+    except its excluded keys, skips None); a metric missing from ``WEIGHTS``
+    gets ``DEFAULT_WEIGHT`` (``_get_metric_weight``: ``metric_weights['default']``,
+    1.0 in ``closed_loop_*_weighted_average.yaml``). 0 if no weight is left.
+    """
+    factor, num, total = 1.0, 0.0, 0.0
+    for k, v in columns.items():
+        if k == "nuplan_score" or v is None:
+            continue
+        if k in MULTIPLIERS:
+            factor *= float(v)
+        else:
+            w = WEIGHTS.get(k, DEFAULT_WEIGHT)
+            num += w * float(v)
+            total += w
+    return factor * (num / total if total else 0.0)
 
 
 def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
@@ -625,13 +663,13 @@ def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
     times = t if len(t) > 1 else np.arange(max(len(t), 1)) * dt
     lon_acc, lat_acc, acc_mag = ego_comfort_inputs(speed, sel(log.accel), sel(log.steer), sel(log.yaw_rate), dt)
     cols = {
-        "nuplan_no_ego_at_fault_collisions": collision_score(*collision_counts(hit, tid, cat, fault, lay)),
+        "nuplan_no_ego_at_fault_collisions": collision_score(*collision_counts(hit, tid, cat, fault, lay, speed)),
         "nuplan_drivable_area_compliance": drivable_score(sel(f.drivable_excess_m)),
         "nuplan_ego_is_making_progress": float(ratio >= MIN_PROGRESS_RATIO),
         "nuplan_driving_direction_compliance": direction_score(sel(f.nuplan.oncoming_m), times),
         "nuplan_ego_progress_along_expert_route": float(ratio),
         "nuplan_time_to_collision_within_bound": ttc_score(sel(f.nuplan.ttc_s), speed,
-                                                           _first_fault_ticks(hit, tid, fault, lay)),
+                                                           _first_fault_ticks(hit, tid, fault, lay, speed)),
         "nuplan_speed_limit_compliance": speed_limit_score(speed, sel(f.speed_limit), t),
         "nuplan_ego_is_comfortable": comfort_score(lon_acc, lat_acc, sel(log.yaw), times, acc_mag),
     }

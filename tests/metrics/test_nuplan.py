@@ -327,3 +327,54 @@ def test_episode_needs_the_nuplan_ticks():
     log.facts.nuplan = None
     with pytest.raises(ValueError, match="nuplan preset"):
         nuplan.episode_columns(log, fake_scenario(np.arange(5.0), 0.1), 0.1)
+
+
+def test_combine_default_weight_for_unlisted_metric():
+    """nuplan-devkit ``nuplan/planning/metrics/aggregator/weighted_average_metric_aggregator.py``,
+    ``WeightedAverageMetricAggregator._compute_scenario_score`` / ``_get_metric_weight``: every
+    scored column takes part; a metric missing from ``metric_weights`` gets ``metric_weights['default']``
+    (1.0 in ``closed_loop_reactive_agents_weighted_average.yaml``); None values and ``score`` are skipped.
+
+    Worked case: multipliers 1, 0.5, 1, 1 -> factor 0.5; weighted part
+    (5*1 + 5*0 + 4*1 + 2*1 + 1*0 [unlisted, default 1.0]) / (5+5+4+2+1) = 11/17.
+    """
+    cols = {
+        "nuplan_no_ego_at_fault_collisions": 1.0,
+        "nuplan_drivable_area_compliance": 0.5,
+        "nuplan_ego_is_making_progress": 1.0,
+        "nuplan_driving_direction_compliance": 1.0,
+        "nuplan_ego_progress_along_expert_route": 1.0,
+        "nuplan_time_to_collision_within_bound": 0.0,
+        "nuplan_speed_limit_compliance": 1.0,
+        "nuplan_ego_is_comfortable": 1.0,
+        "nuplan_unlisted_metric": 0.0,
+        "nuplan_none_metric": None,
+        "nuplan_score": 123.0,
+    }
+    assert nuplan.DEFAULT_WEIGHT == 1.0
+    assert nuplan.combine(cols) == pytest.approx(0.5 * 11.0 / 17.0, abs=1e-12)
+    without = {k: v for k, v in cols.items() if k != "nuplan_unlisted_metric"}
+    assert nuplan.combine(without) == pytest.approx(0.5 * 11.0 / 16.0, abs=1e-12)
+
+
+def test_static_obstacle_contact_while_ego_stopped_is_not_at_fault():
+    """nuplan-devkit ``nuplan/planning/metrics/utils/collision_utils.py``, ``get_collision_type``:
+    ego speed <= stopped_speed_threshold (5e-2 m/s) -> STOPPED_EGO_COLLISION, which
+    ``no_ego_at_fault_collisions.py`` (``classify_at_fault_collisions``) never counts; a static
+    object hit by a moving ego is STOPPED_TRACK_COLLISION, at fault, an object collision. The
+    type is fixed at the first contact tick (``find_new_collisions`` registers the token then).
+
+    Worked case (NAVSIM's ``no_at_fault_collision`` applies the same rule): contact 1 starts while
+    the ego stands (0.0 m/s) and speeds up while touching -> not counted; contact 2 starts at
+    2 m/s -> one object collision; with the ego stopped at both contacts none counts (score 1).
+    """
+    n = 8
+    no_agent = (np.zeros(n, bool), np.zeros(n, int), np.zeros(n, int), np.zeros(n, bool))
+    lay = np.array([0, 1, 1, 0, 0, 1, 1, 0], bool)
+    speed = np.array([0.0, 0.0, 1.0, 1.0, 2.0, 2.0, 2.0, 2.0])
+    assert nuplan.collision_counts(*no_agent, lay, speed) == (0, 0, 1)
+    stopped = np.where(lay, 0.01, 1.0)
+    assert nuplan.collision_counts(*no_agent, lay, stopped) == (0, 0, 0)
+    assert nuplan.collision_score(*nuplan.collision_counts(*no_agent, lay, stopped)) == 1.0
+    ticks = nuplan._first_fault_ticks(no_agent[0], no_agent[1], no_agent[3], lay, speed)
+    assert np.flatnonzero(ticks).tolist() == [5]
