@@ -1,4 +1,4 @@
-"""Lane area polygons, built on the host (numpy only, no JAX).
+"""Lane area polygons, built on the host (numpy; shapely only to simplify; no JAX).
 
 A lane's area is a simple, counter-clockwise polygon (V, 2) in metres:
 
@@ -15,14 +15,21 @@ A lane's area is a simple, counter-clockwise polygon (V, 2) in metres:
 from __future__ import annotations
 
 import numpy as np
+from shapely.geometry import Polygon
 
 from ..records import LaneRecord
 
-__all__ = ["MITRE_LIMIT", "lane_polygon", "lane_polygon_source", "offset_polyline", "signed_area"]
+__all__ = ["MAX_VERTICES", "MITRE_LIMIT", "SIMPLIFY_TOLERANCE", "lane_polygon", "lane_polygon_source",
+           "offset_polyline", "packed_lane_polygon", "signed_area"]
 
 # Largest mitre scale 1/cos(theta/2) at an interior vertex (a 120° turn); beyond
 # it the offset is clipped so the edges of a tight bend cannot cross over.
 MITRE_LIMIT = 2.0
+
+#: Most vertices a packed lane polygon keeps (the simulator tests every one).
+MAX_VERTICES = 64
+#: First shapely ``simplify`` tolerance (m) for a polygon over MAX_VERTICES; grown 1.25x until it fits.
+SIMPLIFY_TOLERANCE = 0.02
 
 
 def signed_area(poly: np.ndarray) -> float:
@@ -92,3 +99,24 @@ def lane_polygon(lane: LaneRecord) -> np.ndarray:
     if signed_area(ring) < 0:
         ring = ring[::-1]
     return ring
+
+
+def packed_lane_polygon(lane: LaneRecord, max_vertices: int = MAX_VERTICES) -> np.ndarray:
+    """``lane_polygon(lane)`` with at most ``max_vertices`` vertices (V, 2), m.
+
+    Over the cap the ring is simplified with shapely (topology-preserving,
+    tolerance SIMPLIFY_TOLERANCE, grown by 1.25x until it fits); the result stays
+    counter-clockwise and open.
+    """
+    ring = lane_polygon(lane)
+    if len(ring) <= max_vertices:
+        return ring
+    shp, tol = Polygon(ring), SIMPLIFY_TOLERANCE
+    while True:
+        out = np.asarray(shp.simplify(tol, preserve_topology=True).exterior.coords)[:-1]
+        if len(out) <= max_vertices:
+            break
+        tol *= 1.25
+    if signed_area(out) < 0:
+        out = out[::-1]
+    return out

@@ -62,6 +62,7 @@ from drivee2e_jax.records import (
 from drivee2e_jax.scenario.batch import META_STR, PackedBatch, SuiteMeta, bucket
 from drivee2e_jax.scenario.cache import PACK_FORMAT  # its home (no JAX): the cache key needs it
 from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
+from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
 from drivee2e_jax.scenario.routes import densify_route, junction_area, route_commands
 from drivee2e_jax.scenario.sizes import PackSizes, alloc_leaves, map_of, record_needs
 
@@ -96,6 +97,7 @@ def _pack_map(m: MapRecord, sizes: PackSizes) -> dict[str, np.ndarray]:
 
     lane_row = {ln.id: i for i, ln in enumerate(m.lanes)}
     poly("map.lanes", [ln.centerline for ln in m.lanes])
+    poly("map.lane_polygons", [packed_lane_polygon(ln) for ln in m.lanes])
     for i, ln in enumerate(m.lanes):
         one["map.lane_type"][i] = _LANE_TYPE[ln.type]
         one["map.lane_width"][i] = ln.width

@@ -22,6 +22,7 @@ import numpy as np
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import MapRecord, ScenarioRecord
+from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
 from drivee2e_jax.scenario.routes import densify_route
 
 __all__ = ["PackSizes", "LEAVES", "alloc_leaves", "record_needs", "map_needs", "map_of"]
@@ -41,7 +42,8 @@ class PackSizes:
       (O), obstacle_vertices (V_O: static obstacle footprint vertices, sized
       apart because the simulator tests every obstacle against the ego each
       step and footprints are small), route (R: 1 m route points),
-      successors (K).
+      successors (K), lane_vertices (P: lane area polygon vertices, at most
+      ``lane_polygons.MAX_VERTICES`` after host simplification).
     """
 
     agents: int
@@ -57,11 +59,13 @@ class PackSizes:
     route: int
     successors: int
     obstacle_vertices: int = 4
+    lane_vertices: int = 8
 
     #: ``fit`` rounds each maximum up to a multiple of this.
     MULTIPLE: typing.ClassVar[dict[str, int]] = dict(
         agents=8, steps=8, lanes=8, points=4, boundaries=8, crosswalks=4, vertices=4,
         stop_lines=4, drivable=4, obstacles=4, route=16, successors=4, obstacle_vertices=4,
+        lane_vertices=8,
     )
 
     def __post_init__(self):
@@ -93,7 +97,7 @@ class PackSizes:
             vertices=m.crosswalks.xy.shape[-2], stop_lines=m.stop_lines.shape[-3],
             drivable=m.drivable.xy.shape[-3], obstacles=m.obstacles.xy.shape[-3],
             route=scenario.route.xy.shape[-2], successors=m.lane_successors.shape[-1],
-            obstacle_vertices=m.obstacles.xy.shape[-2],
+            obstacle_vertices=m.obstacles.xy.shape[-2], lane_vertices=m.lane_polygons.xy.shape[-2],
         )
 
     def replace(self, **changes: int) -> PackSizes:
@@ -138,6 +142,7 @@ LEAVES: dict[str, tuple[tuple, Any, Any]] = {
     "map.lane_successors": (("lanes", "successors"), _I, -1),
     "map.lane_left_marking": (("lanes",), _I, 0),
     "map.lane_right_marking": (("lanes",), _I, 0),
+    **_poly("map.lane_polygons", "lanes", "lane_vertices"),
     **_poly("map.boundaries", "boundaries", "points"),
     "map.boundary_marking": (("boundaries",), _I, 0),
     **_poly("map.crosswalks", "crosswalks", "vertices"),
@@ -192,6 +197,8 @@ def map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         most(m.crosswalks, len, lambda i: f"{where} crosswalks[{i}]"),
         most(m.drivable_areas, len, lambda i: f"{where} drivable_areas[{i}]"),
     )
+    lane_verts = most(m.lanes, lambda ln: len(packed_lane_polygon(ln)),
+                      lambda i: f"{where} lanes[{i}] area polygon")
     obstacle_verts = most(m.obstacles, lambda o: len(o.polygon), lambda i: f"{where} obstacles[{i}].polygon")
     return {
         "lanes": (len(m.lanes), f"{where} lanes"),
@@ -203,6 +210,7 @@ def map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         "drivable": (len(m.drivable_areas), f"{where} drivable_areas"),
         "obstacles": (len(m.obstacles), f"{where} obstacles"),
         "obstacle_vertices": obstacle_verts,
+        "lane_vertices": lane_verts,
         "successors": most(m.lanes, lambda ln: len(ln.successors), lambda i: f"{where} lanes[{i}].successors"),
     }
 

@@ -42,3 +42,15 @@ def test_boundaries_used_exactly():
     assert Polygon(poly).is_valid and signed_area(poly) > 0
     # one boundary only -> fallback
     assert lane_polygon_source(LaneRecord(id=2, centerline=cl, left_boundary=left)) == "centerline"
+
+
+def test_packed_polygon_is_capped_and_close():
+    from drivee2e_jax.scenario.lane_polygons import MAX_VERTICES, packed_lane_polygon
+
+    cl = _arc(30.0, np.pi, 200)  # 400 ring vertices before simplification
+    lane = LaneRecord(id=0, centerline=cl, width=3.5)
+    full, capped = Polygon(lane_polygon(lane)), Polygon(packed_lane_polygon(lane))
+    assert len(lane_polygon(lane)) > MAX_VERTICES >= len(packed_lane_polygon(lane))
+    assert capped.is_valid and capped.exterior.is_ccw
+    # a 94 m half-circle in <= 64 vertices: chords of ~3 m, sagitta ~4 cm on each side
+    assert full.symmetric_difference(capped).area / full.area < 0.02
