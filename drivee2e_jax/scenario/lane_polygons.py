@@ -20,7 +20,7 @@ from shapely.geometry import Polygon
 from ..records import LaneRecord
 
 __all__ = ["MAX_VERTICES", "MITRE_LIMIT", "SIMPLIFY_TOLERANCE", "lane_polygon", "lane_polygon_source",
-           "offset_polyline", "packed_lane_polygon", "signed_area"]
+           "map_notes", "offset_polyline", "packed_lane_polygon", "signed_area"]
 
 # Largest mitre scale 1/cos(theta/2) at an interior vertex (a 120° turn); beyond
 # it the offset is clipped so the edges of a tight bend cannot cross over.
@@ -119,4 +119,25 @@ def packed_lane_polygon(lane: LaneRecord, max_vertices: int = MAX_VERTICES) -> n
         tol *= 1.25
     if signed_area(out) < 0:
         out = out[::-1]
+    return out
+
+
+def map_notes(m) -> list[str]:
+    """Informative lines (not problems) about a MapRecord's lane polygons.
+
+    * no drivable_areas: drivable-area compliance falls back to the union of the
+      lane polygons (with the count from boundaries vs centreline);
+    * some but not all lanes have boundaries: the ids of the fallback lanes.
+    """
+    src = [lane_polygon_source(ln) for ln in m.lanes]
+    nb, nc = src.count("boundaries"), src.count("centerline")
+    out = []
+    if not m.drivable_areas:
+        out.append(f"map {m.map_id}: no drivable_areas; drivable-area compliance uses the union of its lane "
+                   f"polygons ({nb} from boundaries, {nc} from centreline ± width/2)")
+    if nb and nc:
+        ids = [ln.id for ln, s in zip(m.lanes, src) if s == "centerline"]
+        shown = ", ".join(str(i) for i in ids[:10]) + (f", ... ({len(ids)} in all)" if len(ids) > 10 else "")
+        out.append(f"map {m.map_id}: lanes {shown} have no left/right_boundary; their polygons are the "
+                   f"centreline ± width/2")
     return out
