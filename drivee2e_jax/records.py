@@ -45,6 +45,10 @@ class LaneRecord:
     successors: list[int] = field(default_factory=list)  # lane ids
     left_marking: str = "dashed"  # one of MARKINGS
     right_marking: str = "dashed"
+    # Optional lane edges, (n, 2) float m, in the driving direction; left = left of travel.
+    # When both are present they define the lane's area polygon (scenario/lane_polygons.py).
+    left_boundary: np.ndarray | None = None
+    right_boundary: np.ndarray | None = None
 
 
 @dataclass

@@ -212,6 +212,12 @@ class MapData:
       lane_speed_limit: (L,) float32, m/s.
       lane_successors:  (L, K) int32 indices into lanes, -1 padded.
       lane_left_marking, lane_right_marking: (L,) int32 ``Marking``.
+      lane_polygons:    Polylines (L, P) lane area polygons, counter-clockwise, from
+                        the lane's left/right boundaries where the source has them,
+                        else the curved centreline ± width/2 (built on the host by
+                        ``scenario.lane_polygons``; polygons over
+                        ``lane_polygons.MAX_VERTICES`` vertices are simplified with
+                        a few cm tolerance). Open rings (first vertex not repeated).
       boundaries:       Polylines (E, N) lane boundaries and road edges.
       boundary_marking: (E,) int32 ``Marking``.
       crosswalks:       Polylines (C, V) crosswalk polygons.
@@ -221,8 +227,6 @@ class MapData:
       drivable:         Polylines (G, V) drivable-area polygons.
       obstacles:        Polylines (O, V) static obstacle footprints.
       obstacle_height:  (O,) float32, m.
-      lane_polygons:    Polylines (L, P) each lane's area, counter-clockwise
-                        (``scenario.drivable.lane_polygon``).
       drivable_edges:   (D, 4) float32 [ax, ay, bx, by] edges of the boundary of
                         the drivable AREA (the union of ``drivable``, or of the
                         lane areas when the map has no drivable polygons), m,
@@ -239,6 +243,7 @@ class MapData:
     lane_successors: Array
     lane_left_marking: Array
     lane_right_marking: Array
+    lane_polygons: Polylines
     boundaries: Polylines
     boundary_marking: Array
     crosswalks: Polylines
@@ -248,7 +253,6 @@ class MapData:
     drivable: Polylines
     obstacles: Polylines
     obstacle_height: Array
-    lane_polygons: Polylines
     drivable_edges: Array
     drivable_edges_valid: Array
     drivable_source: Array

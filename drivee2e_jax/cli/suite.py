@@ -247,11 +247,17 @@ def run_validate(args) -> int:
         return common.EXIT_PROBLEMS
     head = json.loads((args.folder / "suite.json").read_text(encoding="utf-8"))
     num_maps = len(list((args.folder / "maps").glob("*.json")))
+    from drivee2e_jax.scenario.lane_polygons import map_notes
+
+    records = read_suite(args.folder)
+    for mid in sorted(records.maps):  # notes, not problems: stderr, exit code unchanged
+        for line in map_notes(records.maps[mid]):
+            print(f"note: {line}", file=sys.stderr)
     findings = []
     if not args.no_curation:
         from drivee2e_jax.scenario.curation import curate_suite
 
-        findings = curate_suite(read_suite(args.folder))
+        findings = curate_suite(records)
         for f in findings:  # warnings go to stderr: stdout keeps the one-line verdict
             print(f"warning: {f}", file=sys.stderr)
     if findings:

@@ -117,13 +117,13 @@ def _used(f: dict[str, np.ndarray], meta: SuiteMeta) -> dict[str, np.ndarray]:
         "crosswalks": last(f["map.crosswalks.valid"], 1),
         "vertices": np.maximum.reduce([last(f[f"map.{p}.point_valid"], 2) for p in ("crosswalks", "drivable")]),
         "obstacle_vertices": last(f["map.obstacles.point_valid"], 2),
+        "lane_vertices": last(f["map.lane_polygons.point_valid"], 2),
         "stop_lines": last(f["map.stop_line_valid"], 1),
         "drivable": last(f["map.drivable.valid"], 1),
         "obstacles": last(f["map.obstacles.valid"], 1),
         "route": last(f["route.valid"], 1),
         "successors": last(f["map.lane_successors"] >= 0, 2),
         "drivable_edges": last(f["map.drivable_edges_valid"], 1),
-        "lane_vertices": last(f["map.lane_polygons.point_valid"], 2),
     }
 
 

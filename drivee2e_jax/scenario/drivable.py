@@ -29,14 +29,12 @@ import enum
 
 import numpy as np
 import shapely
-from shapely.geometry import LineString, Polygon
+from shapely.geometry import Polygon
 
 from drivee2e_jax.records import LaneRecord, MapRecord
+from drivee2e_jax.scenario.lane_polygons import lane_polygon
 
-__all__ = ["DrivableSource", "drivable_edges", "drivable_union", "lane_area", "lane_polygon"]
-
-#: At most this many vertices per packed lane polygon (``lane_polygon``).
-LANE_POLYGON_MAX_VERTICES = 64
+__all__ = ["DrivableSource", "drivable_edges", "drivable_union", "lane_area"]
 
 #: Vertices closer than this to the line through their neighbours are dropped
 #: from the union's rings (m): exact to well below the 0.3 m / 0 m thresholds.
@@ -52,31 +50,10 @@ class DrivableSource(enum.IntEnum):
 
 
 def lane_area(lane: LaneRecord):
-    """A shapely polygon of one lane's area: the curved centreline +- width / 2
-    (flat ends)."""
-    line = LineString(np.asarray(lane.centerline, float).reshape(-1, 2))
-    return line.buffer(0.5 * float(lane.width), cap_style="flat", join_style="mitre", mitre_limit=4.0)
-
-
-def lane_polygon(lane: LaneRecord) -> np.ndarray:
-    """(V, 2) float64 the lane's area as one simple counter-clockwise polygon
-    (``lane_area``; no repeated closing vertex), m; simplified on the host
-    until it has at most ``LANE_POLYGON_MAX_VERTICES`` vertices (tolerance
-    doubling from 1 mm). Empty (0, 2) for a lane without area."""
-    cl = np.asarray(lane.centerline, float).reshape(-1, 2)
-    if len(cl) < 2 or not lane.width > 0:
-        return np.zeros((0, 2))
-    geom = shapely.make_valid(lane_area(lane))
-    parts = [g for g in shapely.get_parts(geom) if isinstance(g, Polygon) and not g.is_empty]
-    if not parts:
-        return np.zeros((0, 2))
-    poly = shapely.geometry.polygon.orient(max(parts, key=lambda g: g.area), 1.0)
-    tol = SIMPLIFY_TOLERANCE_M
-    out = poly
-    while len(out.exterior.coords) - 1 > LANE_POLYGON_MAX_VERTICES:
-        out = poly.simplify(tol, preserve_topology=True)
-        tol *= 2.0
-    return np.asarray(out.exterior.coords, float)[:-1]
+    """A shapely polygon of one lane's area (``scenario.lane_polygons.lane_polygon``:
+    its left/right boundaries where the record has them, else the curved
+    centreline +- width / 2)."""
+    return shapely.make_valid(Polygon(lane_polygon(lane)))
 
 
 def drivable_union(m: MapRecord):

@@ -29,7 +29,7 @@ __all__ = ["DECIMALS", "suite_obj", "scenario_obj", "map_obj", "jsonify", "dumps
 DECIMALS = {
     "t": 4, "x": 3, "y": 3, "yaw": 4, "vx": 3, "vy": 3, "size": 3,
     "waypoints": 3, "source": 3, "destination": 3,
-    "centerline": 3, "width": 3, "speed_limit": 3, "points": 3, "polygon": 3,
+    "centerline": 3, "left_boundary": 3, "right_boundary": 3, "width": 3, "speed_limit": 3, "points": 3, "polygon": 3,
     "height": 3, "crosswalks": 3, "drivable_areas": 3,
     "duration": 3, "yellow_duration": 3, "all_red": 3, "dt": 6,
 }
@@ -74,13 +74,23 @@ def scenario_obj(s: ScenarioRecord) -> dict:
     }
 
 
+def _lane_obj(ln) -> dict:
+    obj = {"id": ln.id, "centerline": np.asarray(ln.centerline), "width": ln.width,
+           "speed_limit": ln.speed_limit, "type": ln.type, "successors": list(ln.successors),
+           "left_marking": ln.left_marking, "right_marking": ln.right_marking}
+    # Optional keys: written only when the lane has them, so old suites round-trip unchanged.
+    if ln.left_boundary is not None:
+        obj["left_boundary"] = np.asarray(ln.left_boundary)
+    if ln.right_boundary is not None:
+        obj["right_boundary"] = np.asarray(ln.right_boundary)
+    return obj
+
+
 def map_obj(m: MapRecord) -> dict:
     return {
         "schema_version": SCHEMA_VERSION,
         "map_id": m.map_id,
-        "lanes": [{"id": ln.id, "centerline": np.asarray(ln.centerline), "width": ln.width,
-                   "speed_limit": ln.speed_limit, "type": ln.type, "successors": list(ln.successors),
-                   "left_marking": ln.left_marking, "right_marking": ln.right_marking} for ln in m.lanes],
+        "lanes": [_lane_obj(ln) for ln in m.lanes],
         "boundaries": [{"points": np.asarray(b.points), "marking": b.marking} for b in m.boundaries],
         "crosswalks": [np.asarray(p) for p in m.crosswalks],
         "stop_lines": [{"id": s.id, "points": np.asarray(s.points), "lane_id": s.lane_id,

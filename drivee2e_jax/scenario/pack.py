@@ -63,8 +63,9 @@ from drivee2e_jax.records import (
 )
 from drivee2e_jax.scenario.batch import META_STR, PackedBatch, SuiteMeta, bucket
 from drivee2e_jax.scenario.cache import PACK_FORMAT  # its home (no JAX): the cache key needs it
-from drivee2e_jax.scenario.drivable import drivable_edges, lane_polygon
+from drivee2e_jax.scenario.drivable import drivable_edges
 from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
+from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
 from drivee2e_jax.scenario.routes import densify_route, junction_area, route_commands
 from drivee2e_jax.scenario.sizes import PackSizes, alloc_leaves, map_of, record_needs
 
@@ -99,6 +100,7 @@ def _pack_map(m: MapRecord, sizes: PackSizes) -> dict[str, np.ndarray]:
 
     lane_row = {ln.id: i for i, ln in enumerate(m.lanes)}
     poly("map.lanes", [ln.centerline for ln in m.lanes])
+    poly("map.lane_polygons", [packed_lane_polygon(ln) for ln in m.lanes])
     for i, ln in enumerate(m.lanes):
         one["map.lane_type"][i] = _LANE_TYPE[ln.type]
         one["map.lane_width"][i] = ln.width
@@ -109,7 +111,6 @@ def _pack_map(m: MapRecord, sizes: PackSizes) -> dict[str, np.ndarray]:
             if sid not in lane_row:
                 raise DriveE2EError(f"map {m.map_id!r}: lanes[{i}].successors[{j}]: expected a lane id of this map, got {sid}")
             one["map.lane_successors"][i, j] = lane_row[sid]
-    poly("map.lane_polygons", [lane_polygon(ln) for ln in m.lanes])
     poly("map.boundaries", [b.points for b in m.boundaries])
     for i, b in enumerate(m.boundaries):
         one["map.boundary_marking"][i] = _MARKING[b.marking]

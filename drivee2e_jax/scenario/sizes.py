@@ -22,7 +22,8 @@ import numpy as np
 from drivee2e_jax import types
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.records import MapRecord, ScenarioRecord
-from drivee2e_jax.scenario.drivable import drivable_edges, lane_polygon
+from drivee2e_jax.scenario.drivable import drivable_edges
+from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
 from drivee2e_jax.scenario.routes import densify_route
 
 __all__ = ["PackSizes", "LEAVES", "alloc_leaves", "record_needs", "map_needs", "map_of"]
@@ -42,9 +43,9 @@ class PackSizes:
       (O), obstacle_vertices (V_O: static obstacle footprint vertices, sized
       apart because the simulator tests every obstacle against the ego each
       step and footprints are small), route (R: 1 m route points),
-      successors (K), drivable_edges (D: edges of the drivable area's
-      boundary, ``scenario.drivable``), lane_vertices (P: vertices of a lane's
-      area polygon, ``scenario.drivable.lane_polygon``).
+      successors (K), lane_vertices (P: lane area polygon vertices, at most
+      ``lane_polygons.MAX_VERTICES`` after host simplification), drivable_edges
+      (D: edges of the drivable area's boundary, ``scenario.drivable``).
     """
 
     agents: int
@@ -99,7 +100,8 @@ class PackSizes:
             vertices=m.crosswalks.xy.shape[-2], stop_lines=m.stop_lines.shape[-3],
             drivable=m.drivable.xy.shape[-3], obstacles=m.obstacles.xy.shape[-3],
             route=scenario.route.xy.shape[-2], successors=m.lane_successors.shape[-1],
-            obstacle_vertices=m.obstacles.xy.shape[-2],
+            obstacle_vertices=m.obstacles.xy.shape[-2], lane_vertices=m.lane_polygons.xy.shape[-2],
+            drivable_edges=m.drivable_edges.shape[-2],
         )
 
     def replace(self, **changes: int) -> PackSizes:
@@ -144,6 +146,7 @@ LEAVES: dict[str, tuple[tuple, Any, Any]] = {
     "map.lane_successors": (("lanes", "successors"), _I, -1),
     "map.lane_left_marking": (("lanes",), _I, 0),
     "map.lane_right_marking": (("lanes",), _I, 0),
+    **_poly("map.lane_polygons", "lanes", "lane_vertices"),
     **_poly("map.boundaries", "boundaries", "points"),
     "map.boundary_marking": (("boundaries",), _I, 0),
     **_poly("map.crosswalks", "crosswalks", "vertices"),
@@ -153,7 +156,6 @@ LEAVES: dict[str, tuple[tuple, Any, Any]] = {
     **_poly("map.drivable", "drivable", "vertices"),
     **_poly("map.obstacles", "obstacles", "obstacle_vertices"),
     "map.obstacle_height": (("obstacles",), _F, 0),
-    **_poly("map.lane_polygons", "lanes", "lane_vertices"),
     "map.drivable_edges": (("drivable_edges", 4), _F, 0),
     "map.drivable_edges_valid": (("drivable_edges",), _B, False),
     "map.drivable_source": ((), _I, 0),
@@ -202,6 +204,8 @@ def map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         most(m.crosswalks, len, lambda i: f"{where} crosswalks[{i}]"),
         most(m.drivable_areas, len, lambda i: f"{where} drivable_areas[{i}]"),
     )
+    lane_verts = most(m.lanes, lambda ln: len(packed_lane_polygon(ln)),
+                      lambda i: f"{where} lanes[{i}] area polygon")
     obstacle_verts = most(m.obstacles, lambda o: len(o.polygon), lambda i: f"{where} obstacles[{i}].polygon")
     edges, _ = drivable_edges(m)
     return {
@@ -214,9 +218,9 @@ def map_needs(m: MapRecord) -> dict[str, tuple[int, str]]:
         "drivable": (len(m.drivable_areas), f"{where} drivable_areas"),
         "obstacles": (len(m.obstacles), f"{where} obstacles"),
         "obstacle_vertices": obstacle_verts,
+        "lane_vertices": lane_verts,
         "successors": most(m.lanes, lambda ln: len(ln.successors), lambda i: f"{where} lanes[{i}].successors"),
         "drivable_edges": (len(edges), f"{where} drivable area boundary edges"),
-        "lane_vertices": most(m.lanes, lambda ln: len(lane_polygon(ln)), lambda i: f"{where} lanes[{i}] area polygon"),
     }
 
 

@@ -73,7 +73,8 @@ _MAP_REQ = ("map_id", "lanes")
 _MAP_OPT = ("schema_version", "boundaries", "crosswalks", "stop_lines", "drivable_areas",
             "obstacles", "signal_plan", "meta")
 _LANE_REQ = ("id", "centerline")
-_LANE_OPT = ("width", "speed_limit", "type", "successors", "left_marking", "right_marking")
+_LANE_OPT = ("width", "speed_limit", "type", "successors", "left_marking", "right_marking",
+             "left_boundary", "right_boundary")
 _SIGNAL_TEXT = "a signal state index: " + ", ".join(f"{i}={n}" for i, n in enumerate(SIGNAL_STATES))
 
 
@@ -296,6 +297,10 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         succ = c.ints(lobj["successors"], join_path(p, "successors")) if "successors" in lobj else np.zeros(0, np.int64)
         left = c.string(lobj, "left_marking", p, choices=MARKINGS, default=LaneRecord.left_marking)
         right = c.string(lobj, "right_marking", p, choices=MARKINGS, default=LaneRecord.right_marking)
+        lb = (c.array(lobj["left_boundary"], join_path(p, "left_boundary"), cols=2, min_len=2)
+              if "left_boundary" in lobj else None)
+        rb = (c.array(lobj["right_boundary"], join_path(p, "right_boundary"), cols=2, min_len=2)
+              if "right_boundary" in lobj else None)
         if lid is not None and lid in lane_ids:
             c.add(join_path(p, "id"), "a unique lane id", f"{lid} (also lanes[{lane_ids[lid]}])")
             continue
@@ -305,7 +310,8 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
             continue
         successor_refs += [(f"{p}.successors[{j}]", int(s)) for j, s in enumerate(succ)]
         lanes.append(LaneRecord(id=lid, centerline=cl, width=width, speed_limit=speed, type=ltype,
-                                successors=[int(s) for s in succ], left_marking=left, right_marking=right))
+                                successors=[int(s) for s in succ], left_marking=left, right_marking=right,
+                                left_boundary=lb, right_boundary=rb))
     if isinstance(obj.get("lanes"), list) and not obj["lanes"]:
         c.add("lanes", NO_LANES, "an empty list")
     ids_text = _ids_text(lane_ids)

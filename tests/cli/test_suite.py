@@ -64,6 +64,25 @@ def test_validate_ok(capsys, tiny_suite_dir):
     assert (code, out.strip()) == (0, "OK: 4 scenarios, 2 maps")
 
 
+def test_validate_notes_lane_polygon_fallbacks(capsys, tiny_suite_dir):
+    p = tiny_suite_dir / "maps" / "m_cross.json"
+    obj = json.loads(p.read_text())
+    obj["drivable_areas"] = []
+    lane = obj["lanes"][0]
+    lane["left_boundary"] = [[x, y + 1.0] for x, y in lane["centerline"]]
+    lane["right_boundary"] = [[x, y - 1.0] for x, y in lane["centerline"]]
+    p.write_text(json.dumps(obj))
+    code, out, err = run(capsys, "suite", "validate", str(tiny_suite_dir))
+    assert (code, out.strip()) == (0, "OK: 4 scenarios, 2 maps")
+    n = len(obj["lanes"])
+    assert (f"note: map m_cross: no drivable_areas; drivable-area compliance uses the union of its lane "
+            f"polygons (1 from boundaries, {n - 1} from centreline ± width/2)") in err.splitlines()
+    ids = ", ".join(str(ln["id"]) for ln in obj["lanes"][1:])
+    assert f"note: map m_cross: lanes {ids} have no left/right_boundary; their polygons are the centreline ± width/2" \
+        in err.splitlines()
+    assert "m_tee" not in err  # it has drivable areas and no boundaries at all
+
+
 def test_validate_lists_every_problem(capsys, tiny_suite_dir):
     for name, old, new in (("s_val", '"fog"', '"smog"'), ("s_test", '"STP"', '"XYZ"')):
         p = tiny_suite_dir / "scenarios" / f"{name}.json"

@@ -10,7 +10,7 @@ import numpy as np
 
 from drivee2e_jax import infractions as inf
 from drivee2e_jax.records import LaneRecord
-from drivee2e_jax.scenario.drivable import lane_polygon
+from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
 from drivee2e_jax.types import LaneType, Polylines
 
 
@@ -30,7 +30,7 @@ def lane_map(centrelines, widths=3.5, types=None, valid=None):
     m = len(centrelines)
     widths = np.broadcast_to(np.asarray(widths, float), (m,))
     types = np.zeros(m, np.int32) if types is None else np.asarray(types, np.int32)
-    polys = [lane_polygon(LaneRecord(id=i, centerline=np.asarray(c, float), width=float(w)))
+    polys = [packed_lane_polygon(LaneRecord(id=i, centerline=np.asarray(c, float), width=float(w)))
              for i, (c, w) in enumerate(zip(centrelines, widths))]
     lanes, areas = _pad([np.asarray(c, float) for c in centrelines]), _pad(polys)
     if valid is not None:

@@ -344,3 +344,25 @@ def test_to_jax_and_jit(packed):
     one = jax.tree_util.tree_map(lambda a: a[0], sc)
     assert one.tracks.xy.shape == (8, 56, 2)
     assert dataclasses.is_dataclass(one)
+
+
+def test_lane_polygons_packed_per_lane_row(packed, tiny_suite):
+    from shapely.geometry import Point, Polygon
+
+    from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
+
+    f = _flat(packed)
+    m = tiny_suite.maps["m_cross"]
+    b = 0
+    assert f["map.lane_polygons.valid"][b].tolist() == f["map.lanes.valid"][b].tolist()
+    for i, ln in enumerate(m.lanes):
+        ref = packed_lane_polygon(ln)
+        n = len(ref)
+        assert f["map.lane_polygons.point_valid"][b, i].sum() == n
+        xy = f["map.lane_polygons.xy"][b, i, :n].astype(np.float64)
+        np.testing.assert_allclose(xy, ref, atol=1e-4)
+        shp = Polygon(xy)
+        assert shp.is_valid and shp.exterior.is_ccw
+        mid = np.asarray(ln.centerline)[len(ln.centerline) // 2]
+        assert shp.buffer(1e-3).contains(Point(mid))
+    assert PackSizes.of(packed.scenario).lane_vertices == f["map.lane_polygons.xy"].shape[2]

@@ -132,6 +132,22 @@ def test_valid_suite_has_no_problems(tiny_suite_dir):
 # --------------------------------------------------------------------------
 
 
+def test_lane_boundaries_round_trip_and_stay_optional(tiny_suite, tmp_path):
+    import copy
+
+    suite = copy.deepcopy(tiny_suite)
+    lane = suite.maps["m_cross"].lanes[0]
+    cl = np.asarray(lane.centerline, float)
+    lane.left_boundary, lane.right_boundary = cl + [0.0, 1.75], cl - [0.0, 1.75]
+    write_suite(suite, tmp_path / "s")
+    obj = json.loads((tmp_path / "s" / M).read_text())
+    assert "left_boundary" in obj["lanes"][0] and "left_boundary" not in obj["lanes"][1]
+    back = read_suite(tmp_path / "s").maps["m_cross"].lanes
+    np.testing.assert_allclose(back[0].left_boundary, lane.left_boundary, atol=5e-4)
+    np.testing.assert_allclose(back[0].right_boundary, lane.right_boundary, atol=5e-4)
+    assert back[1].left_boundary is None and back[1].right_boundary is None
+
+
 def _edit(folder, rel, fn):
     path = folder / rel
     obj = json.loads(path.read_text())
@@ -199,6 +215,10 @@ CASES = {
     "polygon too small": (M, _set(["crosswalks", 0], [[0, 0], [1, 1]]), "crosswalks[0]", "at least 3 points"),
     "point not a pair": (M, _set(["lanes", 1, "centerline", 1], [1.0]), "lanes[1].centerline[1]",
                          "a list of 2 numbers"),
+    "boundary point not a pair": (M, _set(["lanes", 1, "left_boundary"], [[0.0, 1.0], [1.0]]),
+                                  "lanes[1].left_boundary[1]", "a list of 2 numbers"),
+    "short boundary": (M, _set(["lanes", 0, "right_boundary"], [[0.0, 0.0]]), "lanes[0].right_boundary",
+                       "at least 2 points"),
     "map id not file name": (M, _set(["map_id"], "m_other"), "map_id", "'m_cross' (the file name)"),
     "disagrees with suite.json": (S, _set(["behavior"], "LFT"), "behavior", "'STR' as listed in suite.json"),
     "non-positive dt": (S, _set(["dt"], 0.0), "dt", "a number > 0"),

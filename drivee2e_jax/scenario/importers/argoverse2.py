@@ -218,7 +218,8 @@ def load_map(path: Path, map_id: str) -> MapRecord:
             ltype = "connector"
         lanes.append(LaneRecord(id=int(seg["id"]), centerline=center, width=max(_mean_width(left, right), 1.0),
                                 type=ltype, successors=[int(s) for s in seg.get("successors") or []],
-                                left_marking=lmark, right_marking=rmark))
+                                left_marking=lmark, right_marking=rmark,
+                                left_boundary=left, right_boundary=right))
         for pts, mark in ((left, lmark), (right, rmark)):
             key = tuple(np.round(pts[[0, -1]], 1).ravel())
             rkey = tuple(np.round(pts[[-1, 0]], 1).ravel())

@@ -285,7 +285,9 @@ def assemble_map(map_id: str, lanelets: list[Lanelet], *, crosswalks: list[np.nd
             ln.src.left_marking = ln.src.right_marking = "none"
         records.append(LaneRecord(id=int(ln.src.id), centerline=ln.center, width=ln.width, type=ltype,
                                   successors=[int(s) for s in dict.fromkeys(ln.src.successors or [])],
-                                  left_marking=ln.src.left_marking, right_marking=ln.src.right_marking, **kw))
+                                  left_marking=ln.src.left_marking, right_marking=ln.src.right_marking,
+                                  left_boundary=np.asarray(ln.src.left, np.float64),
+                                  right_boundary=np.asarray(ln.src.right, np.float64), **kw))
     if any(ln.src.successors is None for ln in lanes):  # a lane graph by geometry where the format has none
         infer_successors([r for r in records if r.type in VEHICLE_TYPES], tol_m=SUCCESSOR_TOL_M)
         for ln, rec in zip(lanes, records):

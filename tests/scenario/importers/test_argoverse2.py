@@ -302,3 +302,17 @@ def test_shared_sensor_log():
     assert still >= 3
     full = argoverse2.load_map(next((SENSOR / "map").glob("log_map_archive_*.json")), "x")
     assert len(full.lanes) == 199 and len(full.crosswalks) == 11 and len(full.drivable_areas) == 8
+
+
+@needs_data
+def test_shared_forecasting_lanes_keep_their_boundaries():
+    from shapely.geometry import Point, Polygon
+
+    from drivee2e_jax.scenario.lane_polygons import lane_polygon, lane_polygon_source
+
+    (m,) = load("argoverse2", [FORECAST], ImportOptions()).maps.values()
+    assert {lane_polygon_source(ln) for ln in m.lanes} == {"boundaries"}
+    shp = [Polygon(lane_polygon(ln)) for ln in m.lanes]
+    assert all(s.is_valid for s in shp)
+    inside = np.mean([s.buffer(1e-3).contains(Point(q)) for s, ln in zip(shp, m.lanes) for q in ln.centerline])
+    assert inside > 0.9  # measured 0.917 of centreline points (AV2 centrelines overrun some segment ends)

@@ -196,3 +196,16 @@ def test_bad_files_one_line_errors(tmp_path, text, needle):
 def test_empty_folder(tmp_path):
     with pytest.raises(DriveE2EError, match="expected CommonRoad .xml files"):
         cr.load([tmp_path], ImportOptions())
+
+
+def test_sample_lanes_keep_their_bounds():
+    from shapely.geometry import Point, Polygon
+
+    from drivee2e_jax.scenario.lane_polygons import lane_polygon, lane_polygon_source
+
+    _need_data()
+    m = cr.load([LANKER], ImportOptions()).maps["USA_Lanker-1_1_T-1"]
+    assert {lane_polygon_source(ln) for ln in m.lanes} == {"boundaries"}
+    shp = [Polygon(lane_polygon(ln)) for ln in m.lanes]
+    assert all(s.is_valid for s in shp)
+    assert all(s.buffer(1e-3).contains(Point(q)) for s, ln in zip(shp, m.lanes) for q in ln.centerline)
