@@ -22,7 +22,7 @@ from drivee2e_jax import infractions as inf
 from drivee2e_jax.dynamics import ego_from_log
 from drivee2e_jax.records import LaneRecord, MapRecord
 from drivee2e_jax.scenario.drivable import DrivableSource, drivable_edges, drivable_union
-from drivee2e_jax.types import Polylines
+from tests.helpers import lanes as lane_helpers
 
 # A road: an L-shaped non-convex junction and a leg overlapping it.
 JUNCTION = np.array([[0, 0], [30, 0], [30, 10], [10, 10], [10, 30], [0, 30]], float)
@@ -121,15 +121,6 @@ def test_drivable_excess_is_the_farthest_corner():
 # --------------------------------------------------------------------------
 
 
-def _polylines(polys, n=64):
-    xy = np.zeros((len(polys), n, 2), np.float32)
-    pv = np.zeros((len(polys), n), bool)
-    for i, p in enumerate(polys):
-        xy[i, : len(p)] = p
-        pv[i, : len(p)] = True
-    return Polylines(xy=jnp.asarray(xy), point_valid=jnp.asarray(pv), valid=jnp.asarray(pv.any(1)))
-
-
 def _arc_lane(r, w=3.5, n=24):
     """A quarter-circle lane of centre radius r about the origin, as a polygon."""
     a = np.linspace(0, np.pi / 2, n)
@@ -142,7 +133,7 @@ def _arc_lane(r, w=3.5, n=24):
 @given(st.floats(0.0, 90.0), st.floats(-3.0, 3.0), st.floats(-1.0, 1.0))
 def test_lane_hits_match_shapely_on_curved_lanes(deg, off, dyaw):
     lanes = [_arc_lane(10.0), _arc_lane(13.5), np.array([[-50, -1.75], [50, -1.75], [50, 1.75], [-50, 1.75]])]
-    poly = _polylines(lanes)
+    poly = lane_helpers.polylines(lanes, 64)
     a = np.radians(deg)
     centre = np.array([(10.0 + off) * np.cos(a), (10.0 + off) * np.sin(a)])
     yaw = a + np.pi / 2 + dyaw

@@ -14,8 +14,9 @@ from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
 from drivee2e_jax.types import LaneType, Polylines
 
 
-def _pad(polys):
-    n = max(len(p) for p in polys)
+def polylines(polys, n=None):
+    """Padded ``types.Polylines`` of point lists (vertices a valid prefix), ``n`` points per row (default: the longest)."""
+    n = max(len(p) for p in polys) if n is None else n
     xy = np.zeros((len(polys), n, 2), np.float32)
     pv = np.zeros((len(polys), n), bool)
     for i, p in enumerate(polys):
@@ -32,7 +33,7 @@ def lane_map(centrelines, widths=3.5, types=None, valid=None):
     types = np.zeros(m, np.int32) if types is None else np.asarray(types, np.int32)
     polys = [packed_lane_polygon(LaneRecord(id=i, centerline=np.asarray(c, float), width=float(w)))
              for i, (c, w) in enumerate(zip(centrelines, widths))]
-    lanes, areas = _pad([np.asarray(c, float) for c in centrelines]), _pad(polys)
+    lanes, areas = polylines([np.asarray(c, float) for c in centrelines]), polylines(polys)
     if valid is not None:
         ok = jnp.asarray(valid)
         lanes = lanes.replace(valid=lanes.valid & ok)
