@@ -26,7 +26,7 @@ Usage::
     git --git-dir=<nuplan-devkit mirror> archive HEAD nuplan/common \\
         nuplan/planning/simulation/controller nuplan/planning/metrics/utils/state_extractors.py \\
         nuplan/__init__.py nuplan/planning/__init__.py nuplan/planning/simulation/__init__.py | tar x -C SRC
-    python experiments/comfort/nuplan_reference.py SRC > tests/metrics/data/nuplan_comfort_reference.json
+    python experiments/comfort/nuplan_reference.py SRC > tests/data/nuplan_comfort_reference.json
 
 Needs numpy, scipy, shapely (nuPlan's ``EgoState`` builds its footprint).
 """

@@ -1,6 +1,6 @@
 """nuPlan's comfort signals on the project's simulated ego vs nuplan-devkit's own code.
 
-``data/nuplan_comfort_reference.json`` was produced by
+``tests/data/nuplan_comfort_reference.json`` was produced by
 ``experiments/comfort/nuplan_reference.py`` from motional/nuplan-devkit
 (e9241677): nuPlan's ``KinematicBicycleModel`` drives a curve (constant speed
 and tire angle), an accelerating straight and an accelerating curve, and the
@@ -25,7 +25,7 @@ from drivee2e_jax import dynamics
 from drivee2e_jax.metrics import navsim, nuplan
 from drivee2e_jax.types import Controls, EgoState
 
-REF = json.loads((Path(__file__).parent / "data" / "nuplan_comfort_reference.json").read_text())
+REF = json.loads((Path(__file__).parents[1] / "data" / "nuplan_comfort_reference.json").read_text())
 #: float32 simulation: accelerations are differences of float32 speeds over 0.1 s.
 TOL = {"lon_acc": 2e-4, "lat_acc": 0.0, "jerk": 3e-3, "lon_jerk": 3e-3, "yaw_rate": 2e-3, "yaw_acc": 5e-3}
 
