@@ -114,6 +114,8 @@ class SimContext:
                  meanwhile (``infractions.logged_overlap_spans``).
       path_arc:  (A, T) float32 arc length along each logged path, m, with
                  IDM agents (``reactive.path_arc``); None otherwise.
+      leader_paths: ``reactive.LeaderPaths`` (A, P) each IDM agent's path
+                 ahead for finding its leader; None without IDM agents.
     """
 
     lanes: jnp.ndarray
@@ -126,6 +128,7 @@ class SimContext:
     lanes_index: infractions.LaneIndex
     log_overlap: jnp.ndarray
     path_arc: jnp.ndarray | None = None
+    leader_paths: reactive.LeaderPaths | None = None
 
 
 @struct.dataclass
@@ -354,6 +357,7 @@ class Simulator:
         ego = self.config.dynamics_model.initial_state(tr.xy[i, 0], tr.yaw[i, 0], tr.vel[i, 0],
                                                       jnp.zeros((), jnp.float32))
         lanes = _candidate_lanes(scenario, NUM_CANDIDATE_LANES)
+        path_arc = reactive.path_arc(tr) if self.config.agents == "idm" else None
         ctx = SimContext(
             lanes=lanes,
             markings=_route_markings(scenario),
@@ -364,7 +368,10 @@ class Simulator:
             obstacles=infractions.obstacle_sat(scenario.map),
             lanes_index=infractions.lane_index(scenario.map.lane_polygons),
             log_overlap=infractions.logged_overlap_spans(tr, i, tr.size[i, :2]),
-            path_arc=reactive.path_arc(tr) if self.config.agents == "idm" else None,
+            path_arc=path_arc,
+            leader_paths=(reactive.leader_paths(tr, path_arc, scenario.map.lanes, scenario.map.lane_width,
+                                                scenario.map.lane_successors)
+                          if self.config.agents == "idm" else None),
         )
         n_overlaps = infractions.logged_overlap_count(
             ctx.log_overlap, self.episode_steps(scenario) * self.config.dt, scenario.dt_log)
@@ -411,7 +418,8 @@ class Simulator:
         ego = ego.replace(t=(state.step + 1).astype(jnp.float32) * cfg.dt)
         idm = state.idm
         if cfg.agents == "idm":  # the vehicles react to the ego's new pose and to each other
-            idm = reactive.step(idm, scenario.tracks, state.ctx.path_arc, state.ego.t, cfg.dt, scenario.dt_log,
+            idm = reactive.step(idm, scenario.tracks, state.ctx.path_arc, state.ctx.leader_paths, state.ego.t, cfg.dt,
+                                scenario.dt_log,
                                 ego.xy, ego.yaw, ego.speed, state.ctx.ego_lw, cfg.idm, ego_index=scenario.ego_index)
         agents = self.agents(scenario, ego.t, state.replace(idm=idm))
         signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)

@@ -10,6 +10,7 @@ at equilibrium (a = 0, v = v_lead) the bumper gap is
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -18,6 +19,7 @@ import numpy as np
 from drivee2e_jax import reactive, replay
 from drivee2e_jax.scenario.suite import load_suite
 from drivee2e_jax.types import Category, Tracks
+from tests.helpers.lanes import polylines
 
 DT_LOG = 0.1
 P = reactive.IDMParams()
@@ -50,12 +52,13 @@ def _straight(x0: float, speed: float, steps: int, y: float = 0.0) -> np.ndarray
 def _rollout(tracks: Tracks, ego_index: int, n: int, dt: float, ego_xy=FAR, ego_yaw=0.0, ego_speed=0.0):
     """Scan n steps with a fixed ego box; returns AgentStates stacked (n, ...)."""
     arc = reactive.path_arc(tracks)
+    paths = reactive.leader_paths(tracks, arc)
     ego_i = jnp.int32(ego_index)
 
     def body(state, k):
         t = k.astype(jnp.float32) * dt
         out = reactive.agents_at(state, tracks, arc, t, DT_LOG)
-        state = reactive.step(state, tracks, arc, t, dt, DT_LOG, ego_xy, jnp.float32(ego_yaw),
+        state = reactive.step(state, tracks, arc, paths, t, dt, DT_LOG, ego_xy, jnp.float32(ego_yaw),
                               jnp.float32(ego_speed), LW, P, ego_index=ego_i)
         return state, out
 
@@ -150,13 +153,14 @@ def test_jit_vmap_two_scenarios_deterministic_and_drift():
     def roll(sc):
         tracks, ego = sc.tracks, sc.ego_index
         arc = reactive.path_arc(tracks)
+        paths = reactive.leader_paths(tracks, arc, sc.map.lanes, sc.map.lane_width, sc.map.lane_successors)
         lw = tracks.size[ego, :2]
 
         def body(state, k):
             t = k.astype(jnp.float32) * dt
             e = replay.ego_log_at(tracks, ego, t, sc.dt_log)
             out = reactive.agents_at(state, tracks, arc, t, sc.dt_log)
-            state = reactive.step(state, tracks, arc, t, dt, sc.dt_log, e.xy, e.yaw,
+            state = reactive.step(state, tracks, arc, paths, t, dt, sc.dt_log, e.xy, e.yaw,
                                   jnp.linalg.norm(e.vel), lw, P, ego_index=ego)
             return state, out.xy
 
@@ -228,3 +232,111 @@ def test_the_tracked_path_segment_places_agents_as_an_exact_search_does():
     for _ in range(3):
         got, k, k0 = place(s, k, k0)
     np.testing.assert_allclose(got, exact(s), atol=1e-3)
+
+
+# --------------------------------------------------------------------------
+# Leaders along the agent's own path (issue 35 item 3)
+# --------------------------------------------------------------------------
+
+
+def _arc_tracks(radius: float, speed: float, steps: int, *, extra_rows=()) -> Tracks:
+    """Row 0 a far-away ego, row 1 an agent on a left-turning circle of
+    ``radius`` from (0, 0) heading +x at ``speed``; ``extra_rows`` more
+    (xy (steps, 2)) rows."""
+    tt = np.arange(steps) * DT_LOG
+    ang = speed * tt / radius
+    circle = np.stack([radius * np.sin(ang), radius - radius * np.cos(ang)], axis=-1)
+    xy = np.stack([_straight(-1e3, 0.0, steps, y=500.0), circle, *extra_rows])
+    return _tracks(xy, np.ones((len(xy), steps), bool), [Category.CAR] * len(xy))
+
+
+def _objects(xy, yaw, lw=(4.0, 2.0), vel=(0.0, 0.0)):
+    n = len(xy)
+    return (jnp.asarray(xy, jnp.float32), jnp.asarray(yaw, jnp.float32),
+            jnp.tile(jnp.asarray([vel], jnp.float32), (n, 1)), jnp.tile(jnp.asarray([lw], jnp.float32), (n, 1)),
+            jnp.ones((n,), bool))
+
+
+def _lead_of_agent_1(tracks, objects, s=0.0, lanes=None):
+    arc = reactive.path_arc(tracks)
+    paths = reactive.leader_paths(tracks, arc, *(lanes or ()))
+    a = tracks.xy.shape[0]
+    s_all = jnp.zeros((a,), jnp.float32).at[1].set(s)
+    has, gap, v = reactive.leaders(s_all, tracks.size[:, :2], paths, *objects, jnp.full((a,), -1, jnp.int32), 0.0)
+    return bool(has[1]), float(gap[1]), float(v[1])
+
+
+def test_a_leader_on_a_curve_is_found_at_its_arc_distance():
+    # A stopped car on the agent's own 20 m-radius turn, 1 rad (20 m of arc)
+    # ahead, is 9.2 m to the side of the agent's heading: a straight corridor
+    # misses it. Along the path the gap is 20 m - (4 + 4) / 2 = 16 m (the
+    # path is the chords of the 10 Hz log, resampled: a few cm shorter).
+    tracks = _arc_tracks(20.0, 8.0, 80)
+    car = (20.0 * math.sin(1.0), 20.0 - 20.0 * math.cos(1.0))
+    has, gap, v = _lead_of_agent_1(tracks, _objects([car], [1.0]))
+    assert has and abs(gap - 16.0) < 0.1, gap
+    assert v == 0.0
+    # Its speed counts along the path (tangent there: heading 1 rad).
+    has, _, v = _lead_of_agent_1(tracks, _objects([car], [1.0], vel=(5.0 * math.cos(1.0), 5.0 * math.sin(1.0))))
+    assert has and abs(v - 5.0) < 0.2, v
+
+
+def test_a_car_in_the_next_lane_on_a_curve_is_not_a_leader_but_a_crossing_one_is():
+    tracks = _arc_tracks(20.0, 8.0, 80)
+    # 3.5 m outside the agent's turn, same heading: beside the path, not on it.
+    r = 23.5
+    beside = (r * math.sin(1.0), 20.0 - r * math.cos(1.0))
+    assert not _lead_of_agent_1(tracks, _objects([beside], [1.0]))[0]
+    # A car crossing the path at right angles, its centre 2.6 m off the path:
+    # its half length (2 m) reaches 0.4 m into the agent's half width (1 m).
+    ang = 0.8
+    normal = np.asarray([-math.sin(ang), math.cos(ang)])  # towards the circle's centre
+    on_path = np.asarray([20.0 * math.sin(ang), 20.0 - 20.0 * math.cos(ang)])
+    crossing = on_path + 2.6 * normal
+    has, gap, _ = _lead_of_agent_1(tracks, _objects([crossing], [ang + math.pi / 2]))
+    # Along the path its half extent is w/2 = 1 m. The path is chords 4 m
+    # long (0.2 rad of this turn): a point 2.6 m off it projects up to
+    # 2.6 tan(0.1) = 0.26 m off its radial foot, and the chord's direction
+    # tilts the box's extent by as much again.
+    assert has and abs(gap - (20.0 * ang - 2.0 - 1.0)) < 0.6, gap
+    # ... and 3.2 m off, it does not reach the path.
+    assert not _lead_of_agent_1(tracks, _objects([on_path + 3.2 * normal], [ang + math.pi / 2]))[0]
+
+
+def test_past_its_log_an_agent_looks_along_the_lane_and_its_successor():
+    # The agent's log ends at (20, 0) heading +x, on lane 0 (x 0..24); lane 0's
+    # successor, lane 1, turns left (quarter circle of radius 10 from (24, 0)).
+    # A car stopped on lane 1, 12 m into the turn, is the agent's leader along
+    # the lanes; with no map (straight on) it is 6.4 m off the extension.
+    steps = 41
+    xy = np.stack([_straight(-1e3, 0.0, steps, y=500.0), _straight(0.0, 5.0, steps)])
+    tracks = _tracks(xy, np.ones((2, steps), bool), [Category.CAR] * 2)
+    ang = np.linspace(0.0, math.pi / 2, 16)
+    turn = np.stack([24.0 + 10.0 * np.sin(ang), 10.0 - 10.0 * np.cos(ang)], axis=-1)
+    lanes = polylines([np.asarray([[0.0, 0.0], [12.0, 0.0], [24.0, 0.0]]), turn])
+    width = jnp.asarray([3.5, 3.5], jnp.float32)
+    succ = jnp.asarray([[1, -1], [-1, -1]], jnp.int32)
+    a12 = 12.0 / 10.0
+    car = (24.0 + 10.0 * math.sin(a12), 10.0 - 10.0 * math.cos(a12))
+    objects = _objects([car], [a12])
+    has, gap, _ = _lead_of_agent_1(tracks, objects, s=12.0, lanes=(lanes, width, succ))
+    # 20 m of log ahead of s = 12 -> 8 m, then 4 m of lane 0 and 12 m of the
+    # turn; the path's 4 m chords span 0.4 rad of this tight turn, tilting
+    # the car's extent along the path by up to 0.16 m.
+    assert has and abs(gap - (8.0 + 4.0 + 12.0 - 4.0)) < 0.3, gap
+    assert not _lead_of_agent_1(tracks, objects, s=12.0)[0]
+
+
+def test_drift_does_not_put_an_ended_ego_log_at_the_origin():
+    # The ego's log ends at step 10; an agent's logged path later runs through
+    # the map origin, where ``ego_log_at`` reports zeros for the missing ego.
+    # It must replay its log (no phantom ego box there).
+    steps = 60
+    xy = np.stack([_straight(-30.0, 0.0, steps, y=40.0), _straight(-20.0, 8.0, steps)])
+    valid = np.ones((2, steps), bool)
+    valid[0, 10:] = False
+    tracks = _tracks(xy, valid, [Category.CAR] * 2)
+    sc = SimpleNamespace(tracks=tracks, ego_index=jnp.int32(0), dt_log=jnp.float32(DT_LOG),
+                         map=SimpleNamespace(lanes=None, lane_width=None, lane_successors=None))
+    err, mask, _ = jax.jit(lambda: reactive.drift_errors(sc, 0.1, steps - 1))()
+    assert float(err[mask].max()) < 1e-3

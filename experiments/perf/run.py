@@ -12,6 +12,8 @@ Configurations (``--configs``, default both):
 * ``state_obs`` (not in the default) = ``state_only`` with a policy that also
   reads every vector-observation leaf: the closed loop including the
   observation;
+* ``state_idm`` (not in the default) = ``state_only`` with the reactive IDM
+  agents (``SimConfig(agents="idm")``): their leaders along their paths;
 * ``sweep_bev_lidar`` = the whole suite (800 episodes x the episode length,
   ``Simulator.episode_steps``: 200 steps of 0.1 s on twin15) with
   the 128 x 128 BEV and the 64 x 360 LiDAR on and a small MLP policy reading
@@ -363,7 +365,7 @@ def main(argv=None) -> int:
 
     load_suite(args.suite).pack(None)  # build the suite cache outside the timings
     configs = args.configs.split(",")
-    state_configs = [c for c in ("state_only", "state_obs") if c in configs]
+    state_configs = [c for c in ("state_only", "state_obs", "state_idm") if c in configs]
     for config, b in ((c, b) for c in state_configs for b in batches):
         row = {"config": config, "suite": args.suite}
         if not args.no_compile and config == "state_only":
@@ -372,7 +374,12 @@ def main(argv=None) -> int:
                 warm = _probe_subprocess(args.suite, b, args.chunk, cache)
             row.update(compile_s=round(cold["compile_s"] + cold["compile_init_s"], 3),
                        compile_cached_s=round(warm["compile_s"] + warm["compile_init_s"], 3))
-        m = measure(args.suite, b, args.chunk, args.steps, reads_obs=config == "state_obs")
+        sim_config = None
+        if config == "state_idm":
+            from drivee2e_jax.sim import SimConfig
+
+            sim_config = SimConfig(agents="idm")
+        m = measure(args.suite, b, args.chunk, args.steps, reads_obs=config == "state_obs", config=sim_config)
         row.update({k: (round(v, 3) if isinstance(v, float) else v) for k, v in m.items()})
         row["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
         row["cores"] = os.cpu_count()
