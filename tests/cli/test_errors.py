@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -133,3 +134,42 @@ def test_the_error_line_is_not_glued_to_an_open_progress_bar(capsys):
     err = capsys.readouterr().err
     lines = [seg for chunk in err.split("\n") for seg in chunk.split("\r")]
     assert any(seg.startswith("drivee2e: error: remote://") for seg in lines), repr(err)
+
+
+# ------------------------------------------------------------- the users' reports: a file drivee2e cannot read
+# (each ended in "unexpected; rerun with --debug" exit 1 or a traceback)
+
+
+def _tiny_copy(tmp_path):
+    import shutil
+
+    return Path(shutil.copytree(TINY_SUITE, tmp_path / "suite"))
+
+
+def _one_error_line(err: str) -> str:
+    assert "Traceback" not in err, err
+    (line,) = [s for s in err.splitlines() if s.startswith("drivee2e: error:")]
+    return line
+
+
+def test_bench_refuses_a_suite_json_nested_200000_deep(tmp_path, capsys):
+    """`drivee2e suite validate` refused it; bench (suite._Folder) raised RecursionError."""
+    suite = _tiny_copy(tmp_path)
+    (suite / "suite.json").write_text("[" * 200_000 + "]" * 200_000)
+    code = main(["bench", "--suite", str(suite), "--policy", "stop", "--limit", "1", "--no-progress",
+                 "--out", str(tmp_path / "out")])
+    line = _one_error_line(capsys.readouterr().err)
+    assert code == 2 and line.startswith(f"drivee2e: error: {suite.resolve()}/suite.json: expected valid JSON, got "
+                                         "arrays / objects nested too deep to read"), line
+
+
+def test_bench_refuses_a_5001_digit_number_in_a_scenario_file(tmp_path, capsys):
+    suite = _tiny_copy(tmp_path)
+    path = suite / "scenarios" / "s_val.json"
+    path.write_text(path.read_text().replace('"num_steps":', '"num_steps":' + "9" * 5001 + ',"x":', 1))
+    code = main(["bench", "--suite", str(suite), "--split", "val", "--policy", "stop", "--no-progress",
+                 "--out", str(tmp_path / "out")])
+    line = _one_error_line(capsys.readouterr().err)
+    assert code == 2 and line.startswith(f"drivee2e: error: {suite.resolve()}/scenarios/s_val.json: line "), line
+    assert ": expected a number with at most 4300 digits" in line and "got a number with more than 4300 digits" in line
+

@@ -275,6 +275,19 @@ def test_unparsable_json_reports_line_and_column(tiny_suite_dir):
         read_suite(tiny_suite_dir)
 
 
+def test_a_number_longer_than_python_converts_names_the_file_and_place(tiny_suite_dir):
+    """The user's report: a 5001-digit integer raised ValueError deep inside json
+    ("unexpected; rerun with --debug")."""
+    path = tiny_suite_dir / S
+    path.write_text(path.read_text().replace('"num_steps":', '"num_steps": ' + "9" * 5001 + ', "x":', 1))
+    (p,) = validate_suite(tiny_suite_dir)
+    assert p.file == S and p.field.startswith("line ") and "a number with at most 4300 digits" in p.expected
+    assert p.got == "a number with more than 4300 digits (5001)"
+    with pytest.raises(DriveE2EError, match=r"s_straight.json: line \d+ column \d+: expected a number with at most "
+                                            r"4300 digits .*, got a number with more than 4300 digits"):
+        read_suite(tiny_suite_dir)
+
+
 def test_listed_scenario_file_missing_and_unlisted_file(tiny_suite_dir):
     (tiny_suite_dir / "scenarios" / "s_val.json").rename(tiny_suite_dir / "scenarios" / "s_extra.json")
     problems = {p.file: p for p in validate_suite(tiny_suite_dir)}
