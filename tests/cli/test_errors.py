@@ -173,3 +173,13 @@ def test_bench_refuses_a_5001_digit_number_in_a_scenario_file(tmp_path, capsys):
     assert code == 2 and line.startswith(f"drivee2e: error: {suite.resolve()}/scenarios/s_val.json: line "), line
     assert ": expected a number with at most 4300 digits" in line and "got a number with more than 4300 digits" in line
 
+def test_a_policy_checkpoint_json_with_a_5001_digit_number_is_one_line(tmp_path, capsys):
+    """A policy's own JSON (the checkpoint's meta.json that ad_mlp:checkpoint= reads)."""
+    meta = tmp_path / "run" / "checkpoints" / "1" / "meta.json"
+    meta.parent.mkdir(parents=True)
+    meta.write_text('{"epoch": ' + "9" * 5001 + "}")
+    code = main(["bench", "--suite", str(TINY_SUITE), "--split", "val", "--policy", f"ad_mlp:checkpoint={meta.parent}",
+                 "--no-progress", "--out", str(tmp_path / "out")])
+    line = _one_error_line(capsys.readouterr().err)
+    assert code == 2 and f"{meta}: line 1 column 11: expected a number with at most 4300 digits" in line, line
+
