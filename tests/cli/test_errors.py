@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import textwrap
 from pathlib import Path
 
@@ -172,6 +173,18 @@ def test_bench_refuses_a_5001_digit_number_in_a_scenario_file(tmp_path, capsys):
     line = _one_error_line(capsys.readouterr().err)
     assert code == 2 and line.startswith(f"drivee2e: error: {suite.resolve()}/scenarios/s_val.json: line "), line
     assert ": expected a number with at most 4300 digits" in line and "got a number with more than 4300 digits" in line
+
+def test_bench_refuses_a_401_digit_num_steps_naming_its_range(tmp_path, capsys):
+    """OverflowError when packed into numpy (int32)."""
+    suite = _tiny_copy(tmp_path)
+    path = suite / "scenarios" / "s_val.json"
+    path.write_text(re.sub(r'"num_steps":\s*\d+', '"num_steps":' + "9" * 401, path.read_text(), count=1))
+    code = main(["bench", "--suite", str(suite), "--split", "val", "--policy", "stop", "--no-progress",
+                 "--out", str(tmp_path / "out")])
+    line = _one_error_line(capsys.readouterr().err)
+    assert code == 2 and line == (f"drivee2e: error: {suite.resolve()}/scenarios/s_val.json: num_steps: expected an "
+                                  "integer in [1, 2147483647], got an integer of about 401 digits"), line
+
 
 def test_a_policy_checkpoint_json_with_a_5001_digit_number_is_one_line(tmp_path, capsys):
     """A policy's own JSON (the checkpoint's meta.json that ad_mlp:checkpoint= reads)."""
