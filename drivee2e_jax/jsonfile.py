@@ -42,7 +42,13 @@ class BadJSON(DriveE2EError):
 
     def __init__(self, name: str, where: str, expected: str, got: str):
         self.name, self.where, self.expected, self.got = str(name), where, expected, got
-        super().__init__(f"{name}: {where + ': ' if where else ''}expected {expected}, got {got}")
+        super().__init__(f"{name}: {self.detail}")
+
+    @property
+    def detail(self) -> str:
+        """The message without the file name: ``[WHERE: ]expected ..., got ...``
+        (for callers that say what the file is: ``FILE: unreadable manifest (DETAIL)``)."""
+        return f"{self.where + ': ' if self.where else ''}expected {self.expected}, got {self.got}"
 
 
 def parse_json(data: bytes | bytearray | memoryview | str, name: str = "JSON text") -> Any:

@@ -31,6 +31,7 @@ def test_a_number_longer_than_python_converts_is_one_line(tmp_path):
     assert str(e).startswith(f"{f}: line 2 column 15: expected a number with at most {LIMIT} digits")
     assert f"got a number with more than {LIMIT} digits (5001)" in str(e)
     assert (e.where, e.got) == ("line 2 column 15", f"a number with more than {LIMIT} digits (5001)")
+    assert str(e) == f"{f}: {e.detail}" and e.detail.startswith("line 2 column 15: expected a number with at most")
 
 
 def test_nesting_deeper_than_the_recursion_limit_is_one_line():

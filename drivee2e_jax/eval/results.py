@@ -388,8 +388,7 @@ def read_policy_file(path: Path) -> dict:
     try:
         data = read_json(path)
     except BadJSON as e:
-        raise DriveE2EError(f"{path} is corrupt ({e.where + ': ' if e.where else ''}expected {e.expected}, "
-                            f"got {e.got}); delete it or use --force") from None
+        raise DriveE2EError(f"{path} is corrupt ({e.detail}); delete it or use --force") from None
     if not isinstance(data, dict) or not {"policy", "rows", "events"} <= set(data):
         raise DriveE2EError(f"{path} is corrupt (not a policy results object with policy, rows and events); "
                             "delete it or use --force")

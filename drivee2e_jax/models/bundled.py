@@ -129,7 +129,7 @@ def read_info(name: str, root: str | Path | None = None) -> dict:
     try:
         info = read_json(jpath)
     except BadJSON as e:
-        raise DriveE2EError(f"unreadable bundled weights' metadata: {e}") from e
+        raise DriveE2EError(f"{jpath}: unreadable bundled weights' metadata ({e.detail})") from e
     except FileNotFoundError as e:
         raise DriveE2EError(f"{jpath}: bundled weights' metadata missing (export with experiments/zoo/export.py)") from e
     except (OSError, ValueError) as e:

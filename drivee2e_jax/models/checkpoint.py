@@ -74,7 +74,7 @@ def read_meta(ckpt: str | Path) -> dict:
     try:
         return read_json(f)
     except BadJSON as e:  # the guarded reader: names the file, the place and what was expected
-        raise DriveE2EError(f"unreadable checkpoint metadata: {e}") from e
+        raise DriveE2EError(f"{f}: unreadable checkpoint metadata ({e.detail})") from e
     except OSError as e:
         raise DriveE2EError(f"{f}: unreadable checkpoint metadata ({e})") from e
 

@@ -294,7 +294,7 @@ class DemoDataset:
         try:
             self.manifest = read_json(mf)
         except BadJSON as e:
-            raise DriveE2EError(f"unreadable manifest: {e}") from e
+            raise DriveE2EError(f"{mf}: unreadable manifest ({e.detail})") from e
         except OSError as e:
             raise DriveE2EError(f"{mf}: unreadable manifest ({e})") from e
         if self.manifest.get("format") != FORMAT:
