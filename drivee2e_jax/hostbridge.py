@@ -51,7 +51,9 @@ class HostBridge:
       num_waypoints: K of a waypoint policy (declared, or probed on the first batch).
       observation_fields: the fields the host policy reads (None = all): the
         others are None in the callback, so XLA never computes them.
-      step: control steps called since ``begin``.  failure: the one-line error, or None.
+      step: control steps called since ``begin``.  failure: the one-line error, or None;
+      failure_cause: the exception behind it (the policy's own traceback, which
+        ``raise_if_failed`` chains for ``--debug``), or None.
     """
 
     is_host_policy = True
@@ -71,6 +73,7 @@ class HostBridge:
         self.state = None
         self.step = 0
         self.failure: str | None = None
+        self.failure_cause: BaseException | None = None
 
     # host side ---------------------------------------------------------------
     def begin(self, meta_rows: list[dict]) -> None:
@@ -78,6 +81,7 @@ class HostBridge:
         self.batch = len(meta_rows)
         self.step = 0
         self.failure = None
+        self.failure_cause = None
         try:
             self.state = self.host.reset(list(meta_rows))
         except DriveE2EError:
@@ -97,9 +101,9 @@ class HostBridge:
                 self.step += 1
                 return _to_types(action)
             except DriveE2EError as e:
-                self.failure = e.message
+                self.failure, self.failure_cause = e.message, e
             except (Exception, SystemExit) as e:  # noqa: BLE001 - any error of a user's policy becomes one line
-                self.failure = f"{where}: act {raised_text(e, self.source)}"
+                self.failure, self.failure_cause = f"{where}: act {raised_text(e, self.source)}", e
         return _brake(self.action_type, b, self.num_waypoints)
 
     def probe_num_waypoints(self, obs_batch) -> int:
@@ -203,9 +207,10 @@ def meta_rows(policy, meta, scenario) -> list[dict]:
 
 
 def raise_if_failed(policy) -> None:
-    """Raise the host policy's one-line error, if its ``act`` failed."""
+    """Raise the host policy's one-line error, if its ``act`` failed, from
+    the exception the policy raised (``--debug`` shows the policy's frames)."""
     if isinstance(policy, HostBridge) and policy.failure is not None:
-        raise DriveE2EError(policy.failure)
+        raise DriveE2EError(policy.failure) from policy.failure_cause
 
 
 def _action_shapes(action_type: str, num_waypoints: int | None):

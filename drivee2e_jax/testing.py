@@ -94,6 +94,9 @@ class Problem:
 
     check: str
     message: str
+    #: The exception behind the problem, if any (the policy's own traceback, which
+    #: ``checked_params`` chains for ``--debug``); not part of equality.
+    cause: BaseException | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def __str__(self) -> str:
         return self.message
@@ -113,12 +116,12 @@ class Report(list):
     def ok(self) -> bool:
         return not self
 
-    def add(self, check: str, text: str) -> None:
-        """Record ``"<source>: <text>"``."""
-        self.add_line(check, f"{self.source}: {text}")
+    def add(self, check: str, text: str, cause: BaseException | None = None) -> None:
+        """Record ``"<source>: <text>"`` (``cause``: the exception behind it)."""
+        self.add_line(check, f"{self.source}: {text}", cause)
 
-    def add_line(self, check: str, line: str) -> None:
-        self.append(Problem(check, _one_line(line)))
+    def add_line(self, check: str, line: str, cause: BaseException | None = None) -> None:
+        self.append(Problem(check, _one_line(line), cause))
 
     def __repr__(self) -> str:
         return f"Report({self.source!r}, {list.__repr__(self)})"
@@ -193,7 +196,7 @@ def checked_params(policy: Any, obs, key, params: Any = None, *, where: str = "o
             raise DriveE2EError(f"{source}: init(key, obs) {raised_text(e, source)} ({where})") from e
     report = check_traceable(policy, obs, params, key, where=where)
     if report:
-        raise DriveE2EError(report[0].message)
+        raise DriveE2EError(report[0].message) from report[0].cause  # --debug: the policy's own frames
     return params
 
 
@@ -222,7 +225,7 @@ def check_traceable(policy: Any, obs, params, key, *, source: str | None = None,
     try:
         result = _traced(policy.act, params, obs, state0, key)
     except Exception as e:  # noqa: BLE001
-        report.add("act", f"act(params, obs, state, key) {_trace_failure(e, report.source)} ({where})")
+        report.add("act", f"act(params, obs, state, key) {_trace_failure(e, report.source)} ({where})", e)
         return report
     _check_result(report, result, state0, policy.action_type, getattr(policy, "num_waypoints", None), where)
     del report[1:]
@@ -244,7 +247,7 @@ def _traced_initial_state(report: Report, policy: Any, obs, where: str):
     try:
         state0 = _traced(policy.initial_state, obs)
     except Exception as e:  # noqa: BLE001 - a user's policy: one line
-        report.add("initial_state", f"initial_state(obs) {_trace_failure(e, report.source)} ({where})")
+        report.add("initial_state", f"initial_state(obs) {_trace_failure(e, report.source)} ({where})", e)
         return False, None
     return (True, state0) if _state_leaves_ok(report, state0) else (False, None)
 

@@ -1,10 +1,13 @@
 """AD-MLP exported to ONNX, driven by ONNX Runtime as a host policy (numpy + onnxruntime, no JAX).
 
-    python -c "from drivee2e_jax.models.base import policy_from_checkpoint as p; \
+    pip install onnx onnxruntime    # exporting needs onnx (and JAX); running the policy only onnxruntime
+    python -c "from drivee2e_jax.policy import load_policy; \
 from drivee2e_jax.models.onnx_export import export_ad_mlp as e; \
-pol = p('ad_mlp', 'runs/ad_mlp'); e(pol.params, pol.model, 'ad_mlp.onnx')"
+pol = load_policy('ad_mlp'); e(pol.params, pol.model, 'ad_mlp.onnx')"    # the zoo's bundled weights
     drivee2e bench --policy docs/examples/onnx_ad_mlp.py:model=ad_mlp.onnx
     drivee2e serve-policy docs/examples/onnx_ad_mlp.py:model=ad_mlp.onnx --port 5555  # JAX-free side
+
+(``load_policy('ad_mlp:checkpoint=runs/ad_mlp')`` exports your own training run instead.)
 
 The graph (``drivee2e_jax/models/onnx_export.py``) is the MLP only; this file
 rebuilds AD-MLP's inputs the way the Flax policy does
@@ -12,8 +15,13 @@ rebuilds AD-MLP's inputs the way the Flax policy does
 
 * the ego history lives in the policy state (``reset`` -> all invalid), one
   row per scenario, and ``push_history`` appends the current sample when
-  ``HISTORY_DT`` = 0.5 s has passed (clock: ``obs.privileged.ego.t``, time
-  only) -- ``base.push_history``;
+  ``HISTORY_DT`` = 0.5 s has passed -- ``base.push_history``. The clock is the
+  policy's own: it counts its ``act`` calls, ``t = calls * control_every *
+  dt`` (``make_policy``'s ``dt`` / ``control_every``, the bench's ``--dt`` /
+  ``--control-every``; defaults 0.1 s and 1), in float32 as the simulator
+  computes its time. It never reads ``obs.privileged`` (ground truth a
+  benchmark policy must not use): ``observation_fields`` lists what it reads,
+  and the simulator sends nothing else;
 * ``with_history`` expresses it in the current ego frame (gps / compass):
   x, y, cos / sin of the heading change, speed, accel, yaw rate; 0 where
   invalid -- ``base.with_history``;
@@ -50,9 +58,17 @@ def empty_history(b: int) -> dict:
             "t": np.full((b, h), -1e9, F32), "valid": np.zeros((b, h), bool)}
 
 
-def push_history(hist: dict, obs) -> dict:
-    """``base.push_history`` on a batch: per row, shift in the current sample when due."""
-    t = np.asarray(obs.privileged.ego.t, F32)
+def clock(calls: int, dt: float, control_every: int = 1) -> np.float32:
+    """The simulator's time at the policy's ``calls``-th query (0 first):
+    ``float32(step) * float32(dt)`` with ``step = calls * control_every``, the
+    float32 product the simulator's own clock is."""
+    return F32(calls * control_every) * F32(dt)
+
+
+def push_history(hist: dict, obs, t) -> dict:
+    """``base.push_history`` on a batch: per row, shift in the current sample
+    when due; ``t``: the time now, s (a scalar or one per row)."""
+    t = np.broadcast_to(np.asarray(t, F32), hist["t"].shape[:1])
     due = ~hist["valid"][:, -1] | (t >= (hist["t"][:, -1] + F32(HISTORY_DT)) - F32(1e-3))
     now = {"xy": np.asarray(obs.gps, F32), "yaw": np.asarray(obs.compass, F32), "ego": np.asarray(obs.ego, F32),
            "t": t, "valid": np.ones(t.shape, bool)}
@@ -91,8 +107,11 @@ class OnnxADMLP(HostPolicy):
     """AD-MLP's ONNX graph on ONNX Runtime; Waypoints like ``drivee2e_jax/zoo/ad_mlp.py``."""
 
     action_type = "waypoints"
+    #: All it reads (no ``privileged``): the simulator computes and sends only these.
+    observation_fields = ("ego", "gps", "compass", "command")
 
-    def __init__(self, model: str, name: str = "onnx_ad_mlp", threads: int = 1, providers=("CPUExecutionProvider",)):
+    def __init__(self, model: str, name: str = "onnx_ad_mlp", threads: int = 1, providers=("CPUExecutionProvider",),
+                 dt: float = 0.1, control_every: int = 1):
         # onnxruntime is optional (drivee2e-jax[onnx]): only this example needs it.
         import onnxruntime as ort  # noqa: PLC0415
 
@@ -107,23 +126,29 @@ class OnnxADMLP(HostPolicy):
             raise ValueError(f"{model}: exported with another ego history than this file's "
                              f"({HISTORY_LEN} samples, {HISTORY_DT} s)")
         self.name = name
+        self.dt, self.control_every = float(dt), int(control_every)
         self.num_waypoints = int(props["drivee2e.num_waypoints"])
         self.waypoint_dt = float(props["drivee2e.waypoint_dt"])
         self.input = self.session.get_inputs()[0].name
 
     def reset(self, meta):
-        return {"history": empty_history(len(meta))}
+        return {"history": empty_history(len(meta)), "calls": 0}
 
     def act(self, obs, state):
-        hist = state["history"] if state and state["history"]["t"].shape[0] == obs.batch_size else None
-        hist = push_history(hist if hist is not None else empty_history(obs.batch_size), obs)
+        fresh = not state or state["history"]["t"].shape[0] != obs.batch_size
+        hist = empty_history(obs.batch_size) if fresh else state["history"]
+        calls = 0 if fresh else state["calls"]
+        hist = push_history(hist, obs, clock(calls, self.dt, self.control_every))
         x = features(with_history(hist, obs), obs)
         (xy,) = self.session.run(None, {self.input: x})  # (B, K, 2) ego frame, m
-        return Waypoints(xy=np.asarray(xy, F32)), {"history": hist}
+        return Waypoints(xy=np.asarray(xy, F32)), {"history": hist, "calls": calls + 1}
 
     def close(self):
         self.session = None
 
 
-def make_policy(model: str = "ad_mlp.onnx", name: str = "onnx_ad_mlp", threads: int = 1):
-    return OnnxADMLP(model, name=name, threads=int(threads))
+def make_policy(model: str = "ad_mlp.onnx", name: str = "onnx_ad_mlp", threads: int = 1, dt: float = 0.1,
+                control_every: int = 1):
+    """``dt`` / ``control_every``: the bench's ``--dt`` / ``--control-every``
+    (the policy's clock; pass them when the bench runs with others)."""
+    return OnnxADMLP(model, name=name, threads=int(threads), dt=float(dt), control_every=int(control_every))

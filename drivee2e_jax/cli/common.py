@@ -12,7 +12,8 @@ unreadable files, invalid JSON, out of memory) print one line ``drivee2e:
 error: <message>`` on stderr and exit 2; anything else is a bug: one line
 naming the exception plus "rerun with --debug for the traceback", exit 1.
 Ctrl-C prints ``drivee2e: interrupted`` and exits 130. ``--debug`` (accepted
-anywhere on the command line) re-raises every error with its traceback.
+anywhere on the command line) prints every error's traceback, causes
+included, before that line, and keeps the exit code.
 """
 
 from __future__ import annotations
@@ -109,9 +110,25 @@ def print_error(message: str) -> None:
         print(line, file=sys.stderr)
 
 
+def print_traceback(exc: BaseException) -> None:
+    """``--debug``: the full traceback of ``exc`` on stderr, its causes first
+    (``raise ... from``): a policy's error shows the policy file's own frames
+    (the one-line error keeps the cause, ``hostbridge`` / ``testing``)."""
+    import traceback
+
+    tqdm_module = sys.modules.get("tqdm")
+    for bar in list(getattr(getattr(tqdm_module, "tqdm", None), "_instances", None) or ()):
+        bar.close()  # the traceback starts on a line of its own, not after a half-drawn bar
+    traceback.print_exception(exc, file=sys.stderr)
+    sys.stderr.flush()
+
+
 def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace, *, debug: bool) -> int:
     """Call a subcommand: expected errors -> one line + exit 2, Ctrl-C -> exit
-    130, any other exception -> one line + exit 1 (``debug``: re-raised)."""
+    130, any other exception -> one line + exit 1. ``debug``: the traceback
+    (with its causes) is printed before the line, and the exit code is the
+    same (a script that checks it behaves the same with --debug); Ctrl-C is
+    re-raised."""
     try:
         code = func(args)
         sys.stdout.flush()
@@ -124,7 +141,7 @@ def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespa
         return EXIT_OK
     except EXPECTED_ERRORS as e:
         if debug:
-            raise
+            print_traceback(e)
         print_error(error_message(e))
         return EXIT_USAGE
     except KeyboardInterrupt:
@@ -134,6 +151,6 @@ def run(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespa
         return EXIT_INTERRUPTED
     except Exception as e:  # noqa: BLE001 - a bug: one line, the traceback behind --debug
         if debug:
-            raise
+            print_traceback(e)
         print_error(unexpected_message(e))
         return EXIT_PROBLEMS

@@ -315,8 +315,8 @@ def _raise_initial_state_problem(ro: Rollout, batch, key, sid: str, error: Excep
     except Exception:  # noqa: BLE001 - the simulator itself fails: the original error stands
         return
     report = testing.check_initial_state(ro.policy, obs, where=f"on scenario {sid}'s first observation")
-    if report:
-        raise DriveE2EError(report[0].message) from error
+    if report:  # --debug: the policy's own frames (found again abstractly), else the compiled reset's
+        raise DriveE2EError(report[0].message) from (report[0].cause or error)
 
 
 def init_params(policy, sim: Simulator, batch, key, assets=None):

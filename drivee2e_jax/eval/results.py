@@ -89,6 +89,7 @@ from drivee2e_jax.files import (
     sha256_file,
     sha256_tree,
 )
+from drivee2e_jax.jsonfile import BadJSON, read_json
 from drivee2e_jax.policy import reference_policy_dir, zoo_weight_files
 from drivee2e_jax.remote import is_remote_spec
 
@@ -268,9 +269,9 @@ class RunDir:
                                     "use --force or another --out")
             return
         try:
-            old = json.loads(meta.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise DriveE2EError(f"{meta}: unreadable ({e}); use --force to start over") from e
+            old = read_json(meta)
+        except BadJSON as e:
+            raise DriveE2EError(f"{e}; use --force to start over") from e
         if not isinstance(old, dict):
             raise DriveE2EError(f"{meta}: not a JSON object; use --force to start over")
         old = {k: v for k, v in old.items() if k not in UNCOMPARED}
@@ -385,9 +386,9 @@ def check_policy_file_names(names: Iterable[str]) -> None:
 def read_policy_file(path: Path) -> dict:
     """A ``policies/<name>.json``; DriveE2EError (one line) when it is corrupt."""
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DriveE2EError(f"{path} is corrupt ({e}); delete it or use --force") from None
+        data = read_json(path)
+    except BadJSON as e:
+        raise DriveE2EError(f"{path} is corrupt ({e.detail}); delete it or use --force") from None
     if not isinstance(data, dict) or not {"policy", "rows", "events"} <= set(data):
         raise DriveE2EError(f"{path} is corrupt (not a policy results object with policy, rows and events); "
                             "delete it or use --force")

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import base64
 import dataclasses
-import json
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -56,6 +55,7 @@ from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import begin_rollout, device_batch, with_policy_sensors
 from drivee2e_jax.eval.runspec import RUN_JSON, RunSpec
 from drivee2e_jax.geometry import from_frame
+from drivee2e_jax.jsonfile import read_json
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import registry
 from drivee2e_jax.observe import sensors as sensors_mod
@@ -297,15 +297,49 @@ def _policy_files(path: Path) -> dict[str, dict]:
     run's order (summary.json's, else by file name). Raises DriveE2EError when none."""
     files = {}
     for f in sorted((path / "policies").glob("*.json")):
-        data = _read_json(f)
+        data = _checked_policy_file(f, _read_json(f))
         files[str(data.get("policy", f.stem))] = data
     if not files:
         raise DriveE2EError(f"{path / 'policies'}: no finished policy file (run `drivee2e bench` to the end first)")
     order = list(files)
     if (path / "summary.json").is_file():
-        listed = list(_read_json(path / "summary.json").get("policies", {}))
+        summary = _read_json(path / "summary.json")
+        listed = summary.get("policies") if isinstance(summary, dict) else None
+        if not isinstance(listed, dict):
+            raise DriveE2EError(f"{path / 'summary.json'}: a corrupt results file: expected a JSON object whose "
+                                f"\"policies\" is an object (policy name -> summary), as `drivee2e bench` writes it, "
+                                f"got {_kind(summary if listed is None else listed)}")
         order = [p for p in listed if p in files] + [p for p in order if p not in listed]
     return {p: files[p] for p in order}
+
+
+def _checked_policy_file(path: Path, data: Any) -> dict:
+    """``data`` of ``policies/<name>.json`` when it has what ``view`` /
+    ``export-mcap`` read (an object with a ``rows`` list of objects with a
+    ``scenario_id``); else DriveE2EError naming the file and what was expected."""
+    expected = ("a JSON object with \"policy\" and \"rows\" (a list of scenario rows with \"scenario_id\"), "
+                "as `drivee2e bench` writes it")
+    rows = data.get("rows") if isinstance(data, dict) else None
+    if not isinstance(rows, list):
+        got = _kind(data) if not isinstance(data, dict) else ("an object without \"rows\"" if "rows" not in data
+                                                               else f"\"rows\" {_kind(rows)}")
+        raise DriveE2EError(f"{path}: a corrupt results file: expected {expected}, got {got}; "
+                            "rerun `drivee2e bench` for this policy")
+    bad = next((i for i, r in enumerate(rows) if not isinstance(r, dict) or "scenario_id" not in r), None)
+    if bad is not None:
+        raise DriveE2EError(f"{path}: a corrupt results file: expected {expected}, got rows[{bad}] "
+                            f"{_kind(rows[bad]) if not isinstance(rows[bad], dict) else 'without scenario_id'}; "
+                            "rerun `drivee2e bench` for this policy")
+    return data
+
+
+def _kind(value: Any) -> str:
+    """A JSON value's kind for an error line: 'an empty list', 'a list of 3', 'a string', ..."""
+    if isinstance(value, list):
+        return f"a list of {len(value)}" if value else "an empty list"
+    if isinstance(value, dict):
+        return "an object"
+    return {str: "a string", bool: "a boolean", type(None): "null"}.get(type(value), "a number")
 
 
 def run_policies(results_dir: str | Path) -> list[str]:
@@ -321,8 +355,8 @@ def run_scenarios(results_dir: str | Path, policy: str | None = None) -> list[st
 
 def _read_json(path: Path) -> Any:
     try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
+        return read_json(path)  # BadJSON (a DriveE2EError) names the file and what was expected
+    except OSError as e:
         raise DriveE2EError(f"{path}: unreadable ({e})") from e
 
 

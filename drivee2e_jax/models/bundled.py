@@ -26,7 +26,6 @@ private zoos), else the package's ``zoo/weights/``.
 from __future__ import annotations
 
 import io
-import json
 import re
 import zipfile
 from pathlib import Path
@@ -36,6 +35,7 @@ import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.files import atomic_write, atomic_write_json, sha256_file
+from drivee2e_jax.jsonfile import BadJSON, read_json
 from drivee2e_jax.policy import ZOO_WEIGHTS_ENV, zoo_weights_dir
 
 #: Environment variable naming another weights folder (overrides the package's).
@@ -127,7 +127,9 @@ def read_info(name: str, root: str | Path | None = None) -> dict:
     format, or lacks a field."""
     _, jpath = bundled_paths(name, root)
     try:
-        info = json.loads(jpath.read_text(encoding="utf-8"))
+        info = read_json(jpath)
+    except BadJSON as e:
+        raise DriveE2EError(f"{jpath}: unreadable bundled weights' metadata ({e.detail})") from e
     except FileNotFoundError as e:
         raise DriveE2EError(f"{jpath}: bundled weights' metadata missing (export with experiments/zoo/export.py)") from e
     except (OSError, ValueError) as e:

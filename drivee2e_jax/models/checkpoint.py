@@ -25,6 +25,7 @@ import orbax.checkpoint as ocp
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.files import atomic_write_json
+from drivee2e_jax.jsonfile import BadJSON, read_json
 from drivee2e_jax.observe.bev import BevConfig
 
 META = "meta.json"
@@ -71,8 +72,10 @@ def list_checkpoints(run_dir: str | Path) -> list[Path]:
 def read_meta(ckpt: str | Path) -> dict:
     f = Path(ckpt) / META
     try:
-        return json.loads(f.read_text())
-    except (OSError, ValueError) as e:
+        return read_json(f)
+    except BadJSON as e:  # the guarded reader: names the file, the place and what was expected
+        raise DriveE2EError(f"{f}: unreadable checkpoint metadata ({e.detail})") from e
+    except OSError as e:
         raise DriveE2EError(f"{f}: unreadable checkpoint metadata ({e})") from e
 
 

@@ -20,9 +20,16 @@ import numpy as np
 from drivee2e_jax.errors import DriveE2EError
 
 __all__ = [
-    "SAFE_ID", "SAFE_ID_TEXT", "Problem", "problems_error", "Checker", "short", "json_kind", "is_int", "is_num",
+    "SAFE_ID", "SAFE_ID_TEXT", "INT32_RANGE", "FLOAT32_MAX", "Problem", "problems_error", "Checker", "short", "json_kind", "is_int", "is_num",
     "join_path",
 ]
+
+#: Integers are packed as int32 (``scenario.sizes.LEAVES``: num_steps, track ids,
+#: signal groups); a value outside this range is refused, naming the range.
+INT32_RANGE = (-(2**31), 2**31 - 1)
+#: Every float is simulated as float32: a larger magnitude becomes inf.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+FLOAT32_TEXT = f"|value| <= {FLOAT32_MAX:.6g}, the float32 range the simulator computes in"
 
 #: Scenario and map ids become file names: keep them portable.
 SAFE_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
@@ -80,6 +87,8 @@ def short(value: Any, limit: int = 60) -> str:
         text = "null"
     elif isinstance(value, (bool, np.bool_)):
         text = "true" if value else "false"
+    elif isinstance(value, int) and abs(value) >= 10**limit:  # str() of a 5000-digit int raises
+        text = f"an integer of about {int((abs(value).bit_length() - 1) * 0.30103) + 1} digits"
     else:
         text = str(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -164,11 +173,16 @@ class Checker:
         if key not in obj:
             return default
         v, p = obj[key], join_path(path, key)
+        low, high = INT32_RANGE
+        low = low if minimum is None else max(low, minimum)
+        if isinstance(v, (float, np.floating)) and np.isfinite(v) and float(v).is_integer() and not low <= v <= high:
+            self.add(p, f"an integer in [{low}, {high}]", short(v))  # orjson reads integers beyond 64 bits as floats
+            return None
         if not is_int(v):
             self.add(p, "an integer", json_kind(v))
             return None
-        if minimum is not None and v < minimum:
-            self.add(p, f"an integer >= {minimum}", str(v))
+        if not low <= v <= high:  # num_steps etc. are packed as int32: a 401-digit one overflowed numpy
+            self.add(p, f"an integer in [{low}, {high}]", short(v))
             return None
         return int(v)
 
@@ -180,9 +194,12 @@ class Checker:
         if not is_num(v):
             self.add(p, "a number", json_kind(v))
             return None
+        if is_int(v) and abs(v) > FLOAT32_MAX:  # float() of a 401-digit integer raises OverflowError
+            self.add(p, f"a finite number, {FLOAT32_TEXT}", short(v))
+            return None
         v = float(v)
-        if not np.isfinite(v):
-            self.add(p, "a finite number", short(v))
+        if not np.isfinite(v) or abs(v) > FLOAT32_MAX:
+            self.add(p, f"a finite number, {FLOAT32_TEXT}", short(v))
             return None
         if positive and v <= 0:
             self.add(p, "a number > 0", short(v))
@@ -221,10 +238,13 @@ class Checker:
         if len(a) < min_len:
             self.add(path, f"at least {min_len} {'values' if cols is None else 'points'}", f"{len(a)}")
             return None
-        finite = np.isfinite(a) if cols is None else np.isfinite(a).all(axis=1)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(a) & (np.abs(a) <= FLOAT32_MAX)  # a position of 1e308 is inf in float32
+        finite = ok if cols is None else ok.all(axis=1)
         if not finite.all():
             i = int(np.flatnonzero(~finite)[0])
-            self.add(f"{path}[{i}]", "finite numbers", short(value[i] if cols is None else list(np.asarray(a[i]).tolist())))
+            got = short(value[i]) if cols is None else "[" + ", ".join(short(float(x)) for x in a[i]) + "]"
+            self.add(f"{path}[{i}]", f"finite numbers, {FLOAT32_TEXT}", got)
             return None
         if minimum is not None:
             low = a < minimum if cols is None else (a < minimum).any(axis=1)
@@ -272,6 +292,10 @@ class Checker:
             self.add(path, "a list of integers", json_kind(value))
             return None
         for i, v in enumerate(value):
+            integral = is_int(v) or (isinstance(v, (float, np.floating)) and np.isfinite(v) and float(v).is_integer())
+            if integral and not -(2**63) <= v < 2**63:  # numpy keeps it as an object; orjson reads it as a float
+                self.add(f"{path}[{i}]", choice_text or f"an integer in [{-(2**63)}, {2**63 - 1}]", short(v))
+                return None
             if not is_int(v):
                 self.add(f"{path}[{i}]", choice_text or "an integer", short(v))
                 return None
@@ -303,10 +327,14 @@ def _locate_bad(value: Any, path: str, cols: int | None, want: str) -> tuple[str
         if cols is None:
             if not is_num(v):
                 return f"{path}[{i}]", "a number", json_kind(v)
+            if is_int(v) and abs(v) > FLOAT32_MAX:  # numpy keeps a 401-digit integer as an object
+                return f"{path}[{i}]", f"a finite number, {FLOAT32_TEXT}", short(v)
         else:
             if not isinstance(v, (list, tuple, np.ndarray)) or len(v) != cols:
                 return f"{path}[{i}]", f"a list of {cols} numbers", json_kind(v) if not isinstance(v, (list, tuple)) else f"{len(v)} values"
             for j, e in enumerate(v):
                 if not is_num(e):
                     return f"{path}[{i}][{j}]", "a number", json_kind(e)
+                if is_int(e) and abs(e) > FLOAT32_MAX:
+                    return f"{path}[{i}][{j}]", f"a finite number, {FLOAT32_TEXT}", short(e)
     return path, want, ""

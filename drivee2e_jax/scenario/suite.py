@@ -32,7 +32,6 @@ import ast
 import hashlib
 import importlib
 import importlib.util
-import json
 import os
 import sys
 from pathlib import Path
@@ -41,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.jsonfile import BadJSON, read_json
 from drivee2e_jax.records import BEHAVIORS, SPLITS, TIMES_OF_DAY, WEATHERS, SuiteRecord
 from drivee2e_jax.scenario import schema
 from drivee2e_jax.scenario.cache import CACHE_FORMAT as CACHE_FORMAT  # re-exported: it was defined here
@@ -156,11 +156,9 @@ class _Folder:
         if not head_path.is_file():
             raise DriveE2EError(f"{path} is not a suite folder: expected a suite.json in it")
         try:
-            head = json.loads(head_path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise problems_error(
-                [Problem("suite.json", f"line {getattr(e, 'lineno', '?')} column {getattr(e, 'colno', '?')}",
-                                "valid JSON", getattr(e, "msg", str(e)))], self.path) from None
+            head = read_json(head_path, "suite.json")
+        except BadJSON as e:  # the guarded reader: a 200,000-deep nesting or a 5001-digit number is one line
+            raise problems_error([Problem("suite.json", e.where, e.expected, e.got)], self.path) from None
         head = head if isinstance(head, dict) else {}
         self.name = str(head.get("name") or self.path.name)
         self.version = str(head.get("version", "?"))

@@ -36,7 +36,17 @@ from drivee2e_jax.records import (
     TrackRecord,
 )
 from drivee2e_jax.scenario.encode import map_obj, scenario_obj, suite_obj
-from drivee2e_jax.scenario.problems import SAFE_ID, Checker, Problem, is_int, is_num, join_path, json_kind, short
+from drivee2e_jax.scenario.problems import (
+    INT32_RANGE,
+    SAFE_ID,
+    Checker,
+    Problem,
+    is_int,
+    is_num,
+    join_path,
+    json_kind,
+    short,
+)
 
 __all__ = [
     "GRID_TOLERANCE_S", "MIN_BOX_SIZE_M", "check_suite_json", "check_scenario", "check_map", "check_cross",
@@ -245,8 +255,10 @@ def check_scenario(obj: Any, c: Checker) -> ScenarioRecord | None:
         p = f'signals["{key}"]'
         try:
             group = int(key)
+            if not INT32_RANGE[0] <= group <= INT32_RANGE[1]:  # stop lines' signal_group is an int32
+                raise ValueError(key)
         except (TypeError, ValueError):
-            c.add(p, "an integer signal group as key", short(key))
+            c.add(p, f"an integer signal group in [{INT32_RANGE[0]}, {INT32_RANGE[1]}] as key", short(key))
             continue
         a = c.ints(states, p, choices=range(len(SIGNAL_STATES)), choice_text=_SIGNAL_TEXT)
         if a is None:

@@ -37,6 +37,7 @@ from drivee2e_jax.files import (
     lock_folder,
     remove_stray_temp_files,
 )
+from drivee2e_jax.jsonfile import BadJSON, read_json
 from drivee2e_jax.policy import resolve_policy_path
 from drivee2e_jax.progress import progress as progress_bar
 from drivee2e_jax.sweep.config import SIM_KEYS_ADDED, SimSection, SweepConfig, out_dir
@@ -187,9 +188,9 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
     record = {"config": cfg.to_json(), "runs": [r.run_id for r in runs]}
     if meta.exists() and not force:
         try:
-            old = json.loads(meta.read_text())
-        except json.JSONDecodeError as e:
-            raise DriveE2EError(f"{meta}: unreadable ({e}); use --force to start over") from None
+            old = read_json(meta)
+        except BadJSON as e:
+            raise DriveE2EError(f"{e}; use --force to start over") from None
         old = with_added_sim_keys(old)
         if old.get("config") != record["config"]:
             diff = _diff(old.get("config") or {}, record["config"])

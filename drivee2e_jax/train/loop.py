@@ -34,6 +34,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.jsonfile import read_json
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
 from drivee2e_jax.progress import ProgressFn
@@ -135,7 +136,7 @@ def check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None:
         return
     if not resume:
         raise DriveE2EError(f"{out}: a training run already exists (--resume to continue it, --force to restart)")
-    old = json.loads(cfg_file.read_text())
+    old = read_json(cfg_file)  # BadJSON: one line naming the file
     diff = sorted(k for k in set(old) | set(cfg_json) if old.get(k) != cfg_json.get(k))
     if diff:
         raise DriveE2EError(f"{out}: --resume with a changed config ({', '.join(f'{k}: {old.get(k)!r} -> {cfg_json.get(k)!r}' for k in diff)})")
@@ -226,5 +227,7 @@ def model_of_run(run_dir: str | Path) -> Any:
     f = Path(run_dir) / "config.json"
     if not f.is_file():
         raise DriveE2EError(f"{f}: not a training run folder (no config.json)")
-    cfg = json.loads(f.read_text())
+    cfg = read_json(f)  # BadJSON: one line naming the file
+    if not isinstance(cfg, dict) or not isinstance(cfg.get("model"), str):
+        raise DriveE2EError(f"{f}: expected a JSON object with \"model\" (a model name), as `drivee2e train` writes it")
     return get_model(cfg["model"], **cfg.get("model_config", {}))

@@ -11,7 +11,6 @@ import types as pytypes
 import pytest
 
 from drivee2e_jax import cli
-from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario import suite as suite_mod
 
 
@@ -104,8 +103,10 @@ def test_bad_suite_name_is_one_line_exit_2(capsys, drivee2e_cache):
 
 
 def test_debug_shows_the_exception(capsys, drivee2e_cache):
-    with pytest.raises(DriveE2EError):
-        cli.main(["suite", "info", "twin16", "--debug"])
+    code, out, err = run(capsys, "suite", "info", "twin16", "--debug")
+    assert code == 2 and out == ""  # the exit code of the run without --debug
+    assert err.startswith("Traceback (most recent call last):") and "DriveE2EError: unknown suite 'twin16'" in err
+    assert err.splitlines()[-1].startswith("drivee2e: error: unknown suite 'twin16'")
 
 
 def test_validate_missing_folder(capsys, tmp_path):

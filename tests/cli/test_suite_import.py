@@ -173,3 +173,26 @@ def test_import_suite_api(tmp_path):
     assert len(read_suite(out).scenarios) == 1
     with pytest.raises(DriveE2EError, match="unknown import format 'csv'"):
         import_suite("csv", pk, tmp_path / "b", ImportOptions())
+
+
+@pytest.mark.parametrize("where, field", [
+    (("tracks", "car1", "state", "position"), "tracks['car1'].state.position[5, 0]"),
+    (("tracks", "ego", "state", "position"), "tracks['ego'].state.position[5, 0]"),
+    (("map_features", "lane_a", "polyline"), "map_features['lane_a'].polyline[5, 0]"),
+])
+def test_a_position_beyond_float32_is_refused_naming_the_track_and_field(tmp_path, capsys, recwarn, where, field):
+    """The user's report: a position of 1e308 spewed numpy overflow warnings, then a
+    JSON ValueError ("Out of range float values") or an OverflowError, exit 1."""
+    d = scenario_dict()
+    obj = d
+    for key in where:
+        obj = obj[key]
+    obj[5, 0] = 1e308
+    pk = write_pkl(tmp_path / "sd_big.pkl", d)
+    code, _, err = run(capsys, "suite", "import", "scenarionet", pk, "--out", tmp_path / "out")
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith("drivee2e: error: ") and (
+        f"{pk.name}: {field}: expected finite numbers with |value| <= 3.40282e+38 "
+        "(the float32 range the simulator computes in), got 1e+308\n") in err, err
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in recwarn]
+    assert not (tmp_path / "out").exists()

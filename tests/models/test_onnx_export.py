@@ -137,7 +137,7 @@ def test_numpy_history_and_features_equal_the_jax_ones():
         if hist_jx is None:
             hist_jx = jax.vmap(base.empty_history)(tobs)
         hist_jx = push(hist_jx, tobs)
-        hist_np = ex.push_history(hist_np, obs)
+        hist_np = ex.push_history(hist_np, obs, t)  # the JAX model's clock is privileged.ego.t; the example's its own
         for key in ("xy", "yaw", "ego", "t", "valid"):
             np.testing.assert_array_equal(hist_np[key], np.asarray(getattr(hist_jx, key)), err_msg=key)
         got = ex.features(ex.with_history(hist_np, obs), obs)
@@ -147,6 +147,27 @@ def test_numpy_history_and_features_equal_the_jax_ones():
         max_diff = max(max_diff, float(np.max(np.abs(got - want))))
     assert int(hist_np["valid"].sum(axis=1).min()) == base.HISTORY_LEN  # the history filled up
     print(f"max |numpy - jax| feature difference: {max_diff:.3g}")
+
+
+def test_the_example_reads_no_privileged_field_and_keeps_the_simulators_clock(tmp_path):
+    """A benchmark policy must not read ``obs.privileged``: the example declares
+    the fields it reads and runs with ``privileged`` (and every other field) None;
+    its own clock (act calls x control period) is the simulator's float32 time."""
+    ex = _example_module()
+    assert "privileged" not in ex.OnnxADMLP.observation_fields
+    for dt, every in ((0.1, 1), (0.1, 3), (0.05, 2)):
+        for k in range(0, 200, 7):  # Simulator.step: ego.t = float32(step) * dt
+            assert ex.clock(k, dt, every) == (jnp.float32(k * every) * jnp.float32(dt)).item()
+    model = ad_mlp.make_model()
+    pol = ex.OnnxADMLP(str(export_ad_mlp(_params(model, seed=1), model, tmp_path / "m.onnx")))
+    state = pol.reset(meta_rows(2))
+    for seed in range(12):  # past 0.5 s: the history pushes by its own clock
+        full = make_observation(2, seed=seed, bev=False, sensors=False)
+        obs = dataclasses.replace(full, **{f.name: None for f in dataclasses.fields(full)
+                                           if f.name not in ex.OnnxADMLP.observation_fields})
+        action, state = pol.act(obs, state)
+    assert action.xy.shape == (2, 6, 2) and np.isfinite(action.xy).all()
+    assert state["calls"] == 12 and state["history"]["valid"].sum(axis=1).tolist() == [3, 3]  # t = 0, 0.5, 1.0
 
 
 NO_JAX_PROGRAM = """

@@ -222,6 +222,25 @@ CASES = {
     "map id not file name": (M, _set(["map_id"], "m_other"), "map_id", "'m_cross' (the file name)"),
     "disagrees with suite.json": (S, _set(["behavior"], "LFT"), "behavior", "'STR' as listed in suite.json"),
     "non-positive dt": (S, _set(["dt"], 0.0), "dt", "a number > 0"),
+    # integers packed as int32, floats simulated as float32: out of range is refused, naming the range
+    # (a 401-digit num_steps raised OverflowError; a 1e308 position became inf in float32 unnoticed)
+    "num_steps beyond int32": (S, _set(["num_steps"], int("9" * 401)), "num_steps", "an integer in [1, 2147483647]"),
+    "num_steps 1e20": (S, _set(["num_steps"], 10**20), "num_steps", "an integer in [1, 2147483647]"),
+    "track id beyond int32": (S, _set(["tracks", 0, "track_id"], 2**40), "tracks[0].track_id",
+                              "an integer in [-2147483648, 2147483647]"),
+    "signal group beyond int32": (M, _set(["stop_lines", 0, "signal_group"], -(2**31) - 1), "stop_lines[0].signal_group",
+                                  "an integer in [-1, 2147483647]"),
+    "successor beyond int64": (M, _set(["lanes", 0, "successors"], [2, 2**70]), "lanes[0].successors[1]",
+                               "an integer in [-9223372036854775808, 9223372036854775807]"),
+    "position beyond float32": (S, _set(["tracks", 0, "x", 2], 1e308), "tracks[0].x[2]", "float32 range"),
+    "integer position beyond float32": (S, _set(["tracks", 0, "y", 2], int("9" * 401)), "tracks[0].y[2]",
+                                        "float32 range"),
+    "route point beyond float32": (S, _set(["route", "waypoints", 1], [0.0, -5e38]), "route.waypoints[1]",
+                                   "float32 range"),
+    "lane width beyond float32": (M, _set(["lanes", 0, "width"], 1e39), "lanes[0].width", "float32 range"),
+    "dt as a 401-digit integer": (S, _set(["dt"], int("9" * 401)), "dt", "float32 range"),
+    "signal group key beyond int32": (S, lambda o: o["signals"].__setitem__("9" * 12, o["signals"].pop("0")),
+                                      f'signals["{"9" * 12}"]', "an integer signal group in [-2147483648, 2147483647]"),
 }
 
 
@@ -272,6 +291,19 @@ def test_unparsable_json_reports_line_and_column(tiny_suite_dir):
     (p,) = validate_suite(tiny_suite_dir)
     assert p.file == S and p.field == "line 4 column 1" and p.expected == "valid JSON"
     with pytest.raises(DriveE2EError, match=r"s_straight.json: line 4 column 1: expected valid JSON"):
+        read_suite(tiny_suite_dir)
+
+
+def test_a_number_longer_than_python_converts_names_the_file_and_place(tiny_suite_dir):
+    """The user's report: a 5001-digit integer raised ValueError deep inside json
+    ("unexpected; rerun with --debug")."""
+    path = tiny_suite_dir / S
+    path.write_text(path.read_text().replace('"num_steps":', '"num_steps": ' + "9" * 5001 + ', "x":', 1))
+    (p,) = validate_suite(tiny_suite_dir)
+    assert p.file == S and p.field.startswith("line ") and "a number with at most 4300 digits" in p.expected
+    assert p.got == "a number with more than 4300 digits (5001)"
+    with pytest.raises(DriveE2EError, match=r"s_straight.json: line \d+ column \d+: expected a number with at most "
+                                            r"4300 digits .*, got a number with more than 4300 digits"):
         read_suite(tiny_suite_dir)
 
 

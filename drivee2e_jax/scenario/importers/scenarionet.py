@@ -60,6 +60,7 @@ from drivee2e_jax.polyline import polyline_length
 from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
 from drivee2e_jax.scenario.importers.common import ImportOptions, ImportResult, RawTrack, Skipped
+from drivee2e_jax.scenario.problems import FLOAT32_MAX
 from drivee2e_jax.scenario.validate import MIN_BOX_SIZE_M
 
 __all__ = ["load", "safe_load", "SafeUnpickler", "ALLOWED_GLOBALS", "TYPE_CATEGORIES", "FINE_CATEGORIES",
@@ -318,14 +319,36 @@ def _get(obj: Any, key: str, where: str, kind: type | tuple = dict) -> Any:
     return v
 
 
-def _array(v: Any, where: str, cols: int | None = None) -> np.ndarray:
+def _array(v: Any, where: str, cols: int | None = None, rows: np.ndarray | None = None) -> np.ndarray:
+    """``v`` as a float64 array ((n, >= ``cols``) when given); DriveE2EError
+    naming ``where`` when it is not numbers or holds a finite value outside
+    the float32 range (:func:`_check_range`; only the rows ``rows`` selects
+    when given: a track's invalid steps are never read)."""
     try:
         a = np.asarray(v, np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise DriveE2EError(f"{where}: expected an array of numbers") from None
     if cols is not None and (a.ndim != 2 or a.shape[1] < cols):
         raise DriveE2EError(f"{where}: expected an (n, >={cols}) array, got shape {a.shape}")
+    if rows is None:
+        _check_range(a, where)
     return a
+
+
+def _check_range(a: np.ndarray, where: str, rows: np.ndarray | None = None) -> None:
+    """DriveE2EError naming the first element of ``a`` (of the rows ``rows``
+    selects) that is finite but beyond float32 (a position of 1e308): the
+    importer's float64 arithmetic would overflow with warnings and the
+    simulator computes in float32. NaN / inf stay to the callers (a track
+    with them is skipped)."""
+    with np.errstate(invalid="ignore"):
+        big = np.isfinite(a) & (np.abs(a) > FLOAT32_MAX)
+    if rows is not None and big.ndim and len(rows) == len(big):
+        big &= rows.reshape((-1,) + (1,) * (big.ndim - 1))
+    if big.any():
+        at = tuple(int(i) for i in np.argwhere(big)[0])
+        raise DriveE2EError(f"{where}[{', '.join(map(str, at))}]: expected finite numbers with |value| <= "
+                            f"{FLOAT32_MAX:.6g} (the float32 range the simulator computes in), got {a[at]:.6g}")
 
 
 # --------------------------------------------------------------------------
@@ -440,16 +463,20 @@ def _one(path: Path, options: ImportOptions, limit: int | None) -> ImportResult:
         state = _get(tr, "state", f"{path}: tracks[{tid!r}]")
         for key in ("position", "heading", "valid"):
             _get(state, key, f"{path}: tracks[{tid!r}].state", None)
-        pos = _array(state["position"], f"{path}: tracks[{tid!r}].state.position", 2)
+        at = f"{path}: tracks[{tid!r}].state"
+        valid = np.asarray(state["valid"]).reshape(-1).astype(bool)
+        pos = _array(state["position"], f"{at}.position", 2, rows=valid)
         n = len(pos)
         if n != len(ts):
-            raise DriveE2EError(f"{path}: tracks[{tid!r}].state.position: expected {len(ts)} rows (one per ts), got {n}")
-        valid = np.asarray(state["valid"]).reshape(-1).astype(bool)
-        heading = _array(state["heading"], f"{path}: tracks[{tid!r}].state.heading").reshape(-1)
-        vel = _array(state["velocity"], f"{path}: tracks[{tid!r}].state.velocity", 2)[:, :2] \
+            raise DriveE2EError(f"{at}.position: expected {len(ts)} rows (one per ts), got {n}")
+        heading = _array(state["heading"], f"{at}.heading", rows=valid).reshape(-1)
+        vel = _array(state["velocity"], f"{at}.velocity", 2, rows=valid)[:, :2] \
             if state.get("velocity") is not None else None
-        size = np.stack([_array(state.get(k, np.full(n, np.nan)), f"{path}: tracks[{tid!r}].state.{k}").reshape(n)
+        size = np.stack([_array(state.get(k, np.full(n, np.nan)), f"{at}.{k}", rows=valid).reshape(n)
                          for k in ("length", "width", "height")], axis=1)
+        for key, a in (("position", pos[:, :2]), ("heading", heading), ("velocity", vel), ("size", size)):
+            if a is not None:  # only the valid steps are read: what they hold must fit float32
+                _check_range(a, f"{at}.{key}" if key != "size" else f"{at}.length/width/height", rows=valid)
         if not valid.any():
             skipped.append(Skipped(where, "empty track (no valid step)"))
             continue
