@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 from drivee2e_jax.errors import DriveE2EError, one_line
+from drivee2e_jax.files import DuplicateKeyError, loads_json
 from drivee2e_jax.hostapi import HostPolicy, load_policy_object, validate_host_policy
 from drivee2e_jax.remote import RemotePolicy, is_remote_spec, parse_remote_spec
 
@@ -186,7 +187,9 @@ def parse_policy_spec(spec: str) -> tuple[Path | str, dict, str]:
             if not eq or not key.strip().isidentifier():
                 raise DriveE2EError(f"--policy {spec}: expected PATH:key=value[,key=value...], got {item!r}")
             try:
-                kwargs[key.strip()] = json.loads(value)
+                kwargs[key.strip()] = loads_json(value)
+            except DuplicateKeyError as e:
+                raise DriveE2EError(f"--policy {spec}: {key.strip()}={value}: {e}") from None
             except ValueError:
                 kwargs[key.strip()] = value
     name = kwargs.pop("name", "")

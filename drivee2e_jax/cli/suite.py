@@ -234,6 +234,7 @@ def run_info(args) -> int:
 
 
 def run_validate(args) -> int:
+    from drivee2e_jax.files import read_json
     from drivee2e_jax.scenario.schema import read_suite, validate_suite
     from drivee2e_jax.scenario.suite import EXAMPLE_SUITES
 
@@ -245,7 +246,7 @@ def run_validate(args) -> int:
             print(p)
         print(f"{len(problems)} problem{'s' if len(problems) != 1 else ''} in {args.folder}", file=sys.stderr)
         return common.EXIT_PROBLEMS
-    head = json.loads((args.folder / "suite.json").read_text(encoding="utf-8"))
+    head = read_json(args.folder / "suite.json")  # validated above
     num_maps = len(list((args.folder / "maps").glob("*.json")))
     from drivee2e_jax.scenario.lane_polygons import map_notes
 

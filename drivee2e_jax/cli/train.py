@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from drivee2e_jax.cli.common import add_command
@@ -44,11 +43,12 @@ def add_parser(subparsers) -> None:
 
 def run(args) -> int:
     from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.files import loads_json
     from drivee2e_jax.progress import progress_bars
     from drivee2e_jax.train.loop import TrainConfig, train
 
     try:
-        model_cfg = json.loads(args.model_config)
+        model_cfg = loads_json(args.model_config)
     except ValueError as e:
         raise DriveE2EError(f"--model-config: not JSON ({e})") from e
     if not isinstance(model_cfg, dict):

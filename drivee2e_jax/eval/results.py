@@ -80,11 +80,15 @@ from drivee2e_jax.eval.runspec import RUN_JSON
 from drivee2e_jax.files import (
     LOCK_NAME,
     FolderLocked,
+    ForeignFiles,
+    JSONFileError,
+    OwnFolder,
     atomic_write_json,
     atomic_write_text,
     is_stray_temp_file,
     json_default,
     lock_folder,
+    read_json,
     remove_stray_temp_files,
     sha256_file,
     sha256_tree,
@@ -268,9 +272,9 @@ class RunDir:
                                     "use --force or another --out")
             return
         try:
-            old = json.loads(meta.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise DriveE2EError(f"{meta}: unreadable ({e}); use --force to start over") from e
+            old = read_json(meta)
+        except ValueError as e:
+            raise DriveE2EError(f"{e}; use --force to start over") from None
         if not isinstance(old, dict):
             raise DriveE2EError(f"{meta}: not a JSON object; use --force to start over")
         old = {k: v for k, v in old.items() if k not in UNCOMPARED}
@@ -385,9 +389,9 @@ def check_policy_file_names(names: Iterable[str]) -> None:
 def read_policy_file(path: Path) -> dict:
     """A ``policies/<name>.json``; DriveE2EError (one line) when it is corrupt."""
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DriveE2EError(f"{path} is corrupt ({e}); delete it or use --force") from None
+        data = read_json(path)
+    except JSONFileError as e:
+        raise DriveE2EError(f"{path} is corrupt ({e.reason}); delete it or use --force") from None
     if not isinstance(data, dict) or not {"policy", "rows", "events"} <= set(data):
         raise DriveE2EError(f"{path} is corrupt (not a policy results object with policy, rows and events); "
                             "delete it or use --force")

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -42,6 +41,7 @@ import numpy as np
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.tasks import Task, apply_task, get_task
 from drivee2e_jax.eval.variants import Variant, apply_variant, check_variant
+from drivee2e_jax.files import JSONFileError, read_json
 from drivee2e_jax.metrics.driving_score import COLLISION_MODES, SCORE_PRESETS, score_preset
 from drivee2e_jax.observe.vector import ObsConfig
 from drivee2e_jax.rollout import ControlTiming
@@ -391,8 +391,10 @@ class RunSpec:
         line, naming the file) when it is missing or unreadable."""
         path = Path(folder) / RUN_JSON
         try:
-            info = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
+            info = read_json(path)
+        except JSONFileError as e:
+            raise DriveE2EError(str(e)) from None
+        except OSError as e:
             raise DriveE2EError(f"{path}: unreadable ({e})") from e
         try:
             return cls.from_json(info)

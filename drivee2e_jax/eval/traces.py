@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import base64
 import dataclasses
-import json
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -55,6 +54,7 @@ from drivee2e_jax import hostbridge, replay
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import begin_rollout, device_batch, with_policy_sensors
 from drivee2e_jax.eval.runspec import RUN_JSON, RunSpec
+from drivee2e_jax.files import JSONFileError, read_json
 from drivee2e_jax.geometry import from_frame
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import registry
@@ -321,8 +321,10 @@ def run_scenarios(results_dir: str | Path, policy: str | None = None) -> list[st
 
 def _read_json(path: Path) -> Any:
     try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
+        return read_json(path)
+    except JSONFileError as e:
+        raise DriveE2EError(str(e)) from None
+    except OSError as e:
         raise DriveE2EError(f"{path}: unreadable ({e})") from e
 
 

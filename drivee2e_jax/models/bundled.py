@@ -26,7 +26,6 @@ private zoos), else the package's ``zoo/weights/``.
 from __future__ import annotations
 
 import io
-import json
 import re
 import zipfile
 from pathlib import Path
@@ -35,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.files import atomic_write, atomic_write_json, sha256_file
+from drivee2e_jax.files import JSONFileError, atomic_write, atomic_write_json, read_json, sha256_file
 from drivee2e_jax.policy import ZOO_WEIGHTS_ENV, zoo_weights_dir
 
 #: Environment variable naming another weights folder (overrides the package's).
@@ -127,10 +126,12 @@ def read_info(name: str, root: str | Path | None = None) -> dict:
     format, or lacks a field."""
     _, jpath = bundled_paths(name, root)
     try:
-        info = json.loads(jpath.read_text(encoding="utf-8"))
+        info = read_json(jpath)
     except FileNotFoundError as e:
         raise DriveE2EError(f"{jpath}: bundled weights' metadata missing (export with experiments/zoo/export.py)") from e
-    except (OSError, ValueError) as e:
+    except JSONFileError as e:
+        raise DriveE2EError(f"{jpath}: unreadable bundled weights' metadata ({e.reason})") from None
+    except OSError as e:
         raise DriveE2EError(f"{jpath}: unreadable bundled weights' metadata ({' '.join(str(e).split())})") from e
     if not isinstance(info, dict):
         raise DriveE2EError(f"{jpath}: expected a JSON object, got {type(info).__name__}")

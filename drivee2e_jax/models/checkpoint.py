@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import shutil
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.files import atomic_write_json
+from drivee2e_jax.files import JSONFileError, atomic_write_json, loads_json, read_json
 from drivee2e_jax.observe.bev import BevConfig
 
 META = "meta.json"
@@ -71,8 +70,10 @@ def list_checkpoints(run_dir: str | Path) -> list[Path]:
 def read_meta(ckpt: str | Path) -> dict:
     f = Path(ckpt) / META
     try:
-        return json.loads(f.read_text())
-    except (OSError, ValueError) as e:
+        return read_json(f)
+    except JSONFileError as e:
+        raise DriveE2EError(f"{f}: unreadable checkpoint metadata ({e.reason})") from None
+    except OSError as e:
         raise DriveE2EError(f"{f}: unreadable checkpoint metadata ({e})") from e
 
 
@@ -132,7 +133,7 @@ def training_bev(meta: dict) -> BevConfig | None:
         return None
     try:
         raw = (Path(data) / DATA_MANIFEST).read_bytes()
-        manifest = json.loads(raw)
+        manifest = loads_json(raw)
     except (OSError, ValueError):
         return None
     if not isinstance(manifest, dict) or manifest.get("format") != DATA_FORMAT:

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import loads_json
 from drivee2e_jax.records import BEHAVIORS, SPLITS, TIMES_OF_DAY, WEATHERS, SuiteRecord
 from drivee2e_jax.scenario import schema
 from drivee2e_jax.scenario.cache import CACHE_FORMAT as CACHE_FORMAT  # re-exported: it was defined here
@@ -156,7 +157,7 @@ class _Folder:
         if not head_path.is_file():
             raise DriveE2EError(f"{path} is not a suite folder: expected a suite.json in it")
         try:
-            head = json.loads(head_path.read_text(encoding="utf-8"))
+            head = loads_json(head_path.read_bytes())
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise problems_error(
                 [Problem("suite.json", f"line {getattr(e, 'lineno', '?')} column {getattr(e, 'colno', '?')}",

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -35,6 +34,7 @@ from drivee2e_jax.files import (
     atomic_write_json,
     atomic_write_text,
     lock_folder,
+    read_json,
     remove_stray_temp_files,
 )
 from drivee2e_jax.policy import resolve_policy_path
@@ -187,9 +187,9 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
     record = {"config": cfg.to_json(), "runs": [r.run_id for r in runs]}
     if meta.exists() and not force:
         try:
-            old = json.loads(meta.read_text())
-        except json.JSONDecodeError as e:
-            raise DriveE2EError(f"{meta}: unreadable ({e}); use --force to start over") from None
+            old = read_json(meta)
+        except ValueError as e:
+            raise DriveE2EError(f"{e}; use --force to start over") from None
         old = with_added_sim_keys(old)
         if old.get("config") != record["config"]:
             diff = _diff(old.get("config") or {}, record["config"])
@@ -233,7 +233,7 @@ def combined_rows(cfg: SweepConfig, runs: list[Run], out: Path) -> list[dict]:
     for run in runs:
         folder = out / "runs" / run.run_id
         _, scn_rows = load_rows(folder / "scenarios.csv")
-        policies = list(json.loads((folder / "summary.json").read_text())["policies"])
+        policies = list(read_json(folder / "summary.json")["policies"])
         for pol in policies:
             mine = [r for r in scn_rows if r["policy"] == pol]
             by_rep: dict = {}

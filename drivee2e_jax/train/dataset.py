@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import io
-import json
 import math
 import time
 from collections.abc import Callable, Iterator
@@ -41,7 +40,15 @@ from flax import struct
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import device_batch
-from drivee2e_jax.files import atomic_write, atomic_write_json
+from drivee2e_jax.files import (
+    ForeignFiles,
+    JSONFileError,
+    OwnFolder,
+    atomic_write,
+    atomic_write_json,
+    check_own_folder,
+    read_json,
+)
 from drivee2e_jax.models import base
 from drivee2e_jax.models.checkpoint import DATA_FORMAT as FORMAT
 from drivee2e_jax.models.checkpoint import DATA_MANIFEST as MANIFEST
@@ -292,8 +299,10 @@ class DemoDataset:
         if not mf.is_file():
             raise DriveE2EError(f"{mf}: no dataset manifest (build one with `drivee2e dataset build`)")
         try:
-            self.manifest = json.loads(mf.read_text())
-        except (OSError, ValueError) as e:
+            self.manifest = read_json(mf)
+        except JSONFileError as e:
+            raise DriveE2EError(f"{mf}: unreadable manifest ({e.reason})") from None
+        except OSError as e:
             raise DriveE2EError(f"{mf}: unreadable manifest ({e})") from e
         if self.manifest.get("format") != FORMAT:
             raise DriveE2EError(f"{mf}: format {self.manifest.get('format')!r}, expected {FORMAT}")

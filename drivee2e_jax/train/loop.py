@@ -33,7 +33,15 @@ import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.files import (
+    ForeignFiles,
+    OwnFolder,
+    atomic_write_json,
+    atomic_write_text,
+    check_own_folder,
+    loads_json,
+    read_json,
+)
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
 from drivee2e_jax.progress import ProgressFn
@@ -135,7 +143,10 @@ def check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None:
         return
     if not resume:
         raise DriveE2EError(f"{out}: a training run already exists (--resume to continue it, --force to restart)")
-    old = json.loads(cfg_file.read_text())
+    try:
+        old = read_json(cfg_file)
+    except ValueError as e:
+        raise DriveE2EError(f"{e}; --force to restart") from None
     diff = sorted(k for k in set(old) | set(cfg_json) if old.get(k) != cfg_json.get(k))
     if diff:
         raise DriveE2EError(f"{out}: --resume with a changed config ({', '.join(f'{k}: {old.get(k)!r} -> {cfg_json.get(k)!r}' for k in diff)})")
@@ -145,7 +156,7 @@ def trim_log(log: Path, step: int) -> None:
     """Drop log lines past ``step`` (written after the checkpoint we resume from)."""
     if not log.is_file():
         return
-    keep = [ln for ln in log.read_text().splitlines() if ln.strip() and json.loads(ln).get("step", 0) <= step]
+    keep = [ln for ln in log.read_text().splitlines() if ln.strip() and loads_json(ln).get("step", 0) <= step]
     atomic_write_text(log, "".join(ln + "\n" for ln in keep))
 
 
@@ -226,5 +237,8 @@ def model_of_run(run_dir: str | Path) -> Any:
     f = Path(run_dir) / "config.json"
     if not f.is_file():
         raise DriveE2EError(f"{f}: not a training run folder (no config.json)")
-    cfg = json.loads(f.read_text())
+    try:
+        cfg = read_json(f)
+    except ValueError as e:
+        raise DriveE2EError(str(e)) from None
     return get_model(cfg["model"], **cfg.get("model_config", {}))

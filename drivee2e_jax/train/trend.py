@@ -17,7 +17,6 @@ Output folder::
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -31,7 +30,15 @@ from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.eval.openloop import ShortHorizonError, evaluate_openloop
 from drivee2e_jax.eval.results import rows_to_csv
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, summary_of
-from drivee2e_jax.files import atomic_write, atomic_write_json, atomic_write_text
+from drivee2e_jax.files import (
+    ForeignFiles,
+    OwnFolder,
+    atomic_write,
+    atomic_write_json,
+    atomic_write_text,
+    check_own_folder,
+    read_json,
+)
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.base import as_policy
 from drivee2e_jax.models.checkpoint import training_bev
@@ -97,7 +104,7 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
     for c in ckpts:
         row_file = out / "checkpoints" / f"{c.name}.json"
         if row_file.is_file():
-            row = json.loads(row_file.read_text())
+            row = read_json(row_file)
             print_fn(f"[epoch {c.name}] reused {row_file}")
         else:
             meta = ckpt.read_meta(c)
@@ -126,11 +133,11 @@ def _run_suite(run_dir: Path) -> str:
     """The suite the run's dataset was recorded from, or a PPO run's suite
     (twin15 if unknown)."""
     try:
-        cfg = json.loads((run_dir / "config.json").read_text())
+        cfg = read_json(run_dir / "config.json")
         if "ppo" in cfg:
             return cfg["ppo"]["suite"]
         data = cfg["data"]
-        return json.loads((Path(data) / "manifest.json").read_text())["suite"]
+        return read_json(Path(data) / "manifest.json")["suite"]
     except (OSError, ValueError, KeyError):
         return "twin15"
 
