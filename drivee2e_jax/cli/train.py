@@ -36,7 +36,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="init and shuffle seed (default: 0)")
     p.add_argument("--log-every", type=int, default=10, help="steps between log lines (default: 10)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last epoch")
-    p.add_argument("--force", action="store_true", help="discard an existing run in --out")
+    p.add_argument("--force", action="store_true", help="discard an existing run in --out (only one holding nothing but a run's files)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

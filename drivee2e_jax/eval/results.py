@@ -85,6 +85,7 @@ from drivee2e_jax.files import (
     OwnFolder,
     atomic_write_json,
     atomic_write_text,
+    check_own_folder,
     is_stray_temp_file,
     json_default,
     lock_folder,
@@ -149,8 +150,14 @@ def _csv_value(v):
 
 #: Files the combined tables consist of (rewritten after every run; removed by ``--force``).
 TABLE_FILES = ("scenarios.csv", "scenarios.json", "timing.json", "summary.json", "report.md")
+#: The figures ``eval.plots.write_plots`` draws into ``plots/``.
+PLOT_FILES = ("sr_by_behavior.png", "ds_by_behavior.png", "infractions_per_km.png", "comfort.png")
 #: Folders of per-policy outputs derived from the policy files (removed by ``--force``).
-TABLE_FOLDERS = (("leaderboard", "*.json"), ("plots", "*.png"))
+TABLE_FOLDERS = (("leaderboard", "*.json"), *(("plots", name) for name in PLOT_FILES))
+#: What a results folder holds: ``--force`` redoes only a folder with run.json
+#: and no other files than these (``files.check_own_folder``).
+RESULTS_FOLDER = OwnFolder("results", RUN_JSON, (RUN_JSON, "policies/*.json", *TABLE_FILES,
+                                                 *(f"{sub}/{pattern}" for sub, pattern in TABLE_FOLDERS)))
 #: run.json keys not compared on resume.
 UNCOMPARED = ("provenance",)
 #: What each policy fingerprint key means, for "what changed" messages.
@@ -170,12 +177,14 @@ class RunDir:
 
     * takes ``lock_folder(path)`` (held until ``close``; DriveE2EError naming
       the holder when another run has it) and removes stray temp files;
-    * refuses (DriveE2EError, one line) a folder of a different run (a
-      ``run_info`` key or fingerprint differs), written by an older version
-      (no ``fingerprint`` in run.json), that is not a results folder, with a
-      corrupt policy file, or holding a policy of ``policies`` whose stored
-      fingerprint differs; ``force`` removes the old policy files and tables
-      instead;
+    * refuses (DriveE2EError, one line) a folder that is not a results
+      folder (not empty, no run.json: checked before the lock, so it gets no
+      lock file), a folder of a different run (a ``run_info`` key or
+      fingerprint differs), written by an older version (no ``fingerprint``
+      in run.json), with a corrupt policy file, or holding a policy of
+      ``policies`` whose stored fingerprint differs; ``force`` removes the
+      old policy files and tables instead, and only from a folder holding
+      nothing but ``RESULTS_FOLDER``'s files (else it is refused naming them);
     * then writes ``run.json`` = ``run_info`` + ``{"provenance": ...}``.
 
     Args:
@@ -197,6 +206,8 @@ class RunDir:
         self.info = _plain(run_info)
         self.policies = dict(policies or {})
         self._created = not self.path.exists()
+        self._stack = None
+        self._check_own(force)  # before the lock: a folder refused gets no lock file
         self._stack = contextlib.ExitStack()
         try:
             self._stack.enter_context(lock_folder(self.path, hint="wait for it to finish or use another --out"))
@@ -204,6 +215,7 @@ class RunDir:
             raise DriveE2EError(str(e)) from None
         self._fresh = not self._contents()
         try:
+            self._check_own(force)  # again, under the lock
             remove_stray_temp_files(self.path)
             if force:
                 self._clear()
@@ -254,6 +266,15 @@ class RunDir:
             shutil.rmtree(self.path, ignore_errors=True)
 
     # -- checks ------------------------------------------------------------------
+    def _check_own(self, force: bool) -> None:
+        """DriveE2EError (one line naming the files) for a folder that is not
+        drivee2e's: not empty and without run.json, or, with ``force``,
+        holding a file a results folder does not have (``RESULTS_FOLDER``)."""
+        try:
+            check_own_folder(self.path, RESULTS_FOLDER, redo=force)
+        except ForeignFiles as e:
+            raise DriveE2EError(str(e)) from None
+
     def _clear(self) -> None:
         """``--force``: remove the old policy files and the tables made from them."""
         for f in self.policy_dir.glob("*.json"):
@@ -266,10 +287,7 @@ class RunDir:
 
     def _check_run(self) -> None:
         meta = self.path / RUN_JSON
-        if not meta.exists():
-            if self._contents():
-                raise DriveE2EError(f"{self.path}: exists and is not a drivee2e results folder; "
-                                    "use --force or another --out")
+        if not meta.exists():  # an empty folder (``_check_own`` refused any other)
             return
         try:
             old = read_json(meta)

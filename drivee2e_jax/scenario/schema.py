@@ -47,6 +47,11 @@ from drivee2e_jax.scenario.validate import check_cross, check_map, check_scenari
 __all__ = ["read_suite", "write_suite", "validate_suite", "SuiteWriter", "read_head", "read_scenario"]
 
 
+#: What a suite folder holds: ``overwrite`` (``--force``) replaces only a
+#: folder with suite.json and no other files than these.
+SUITE_FOLDER = OwnFolder("suite", "suite.json", ("suite.json", "maps/*.json", "scenarios/*.json"))
+
+
 def write_suite(suite: SuiteRecord, path: str | os.PathLike, *, overwrite: bool = False,
                 progress: bool = False) -> Path:
     """Write ``suite`` as a suite folder at ``path`` and return the path.
@@ -55,7 +60,8 @@ def write_suite(suite: SuiteRecord, path: str | os.PathLike, *, overwrite: bool 
     The folder is built under a temporary name next to ``path`` and moved
     into place with ``os.replace``, so readers never see half a suite. An
     existing non-empty folder is refused unless ``overwrite=True``, and even
-    then only a folder that holds a ``suite.json`` is replaced.
+    then only a folder that holds a ``suite.json`` and nothing but a suite's
+    files (``SUITE_FOLDER``) is replaced.
     """
     problems = validate_records(suite)
     if problems:
@@ -94,6 +100,10 @@ def _check_target(path: Path, overwrite: bool) -> Path:
                                     "(pass --force / overwrite=True to replace a suite folder)")
             if not (path / "suite.json").is_file():
                 raise DriveE2EError(f"{path} is not a suite folder (no suite.json); refusing to replace it")
+            try:  # replacing the folder deletes it whole: only a suite's own files may be there
+                check_own_folder(path, SUITE_FOLDER, redo=True)
+            except ForeignFiles as e:
+                raise DriveE2EError(str(e)) from None
     return path
 
 

@@ -128,7 +128,21 @@ def data_sharding(batch_size: int):
     return NamedSharding(mesh, PartitionSpec("data")), NamedSharding(mesh, PartitionSpec())
 
 
+#: What a training run folder holds (``train``, ``rl``, ``finetune``): a
+#: non-empty folder without config.json is never written to, and ``--force``
+#: clears only a folder with no other files than these (``files.check_own_folder``).
+TRAINING_FOLDER = OwnFolder("training run", "config.json", ("config.json", "log.jsonl", "checkpoints/*/**"))
+
+
 def check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None:
+    """Check ``out`` before a training run writes it: new or empty, or a
+    training run folder (``TRAINING_FOLDER``) that ``resume`` continues with
+    the same config or ``force`` clears (only when it holds nothing else).
+    DriveE2EError (one line) otherwise."""
+    try:
+        check_own_folder(out, TRAINING_FOLDER, redo=force)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
     cfg_file = out / "config.json"
     if not cfg_file.is_file():
         return

@@ -55,6 +55,10 @@ COLUMNS = (
 )
 
 
+#: What a trend folder holds; a folder with any other file is refused.
+TREND_FOLDER = OwnFolder("trend", None, ("trend.csv", "trend.png", "checkpoints/*.json"))
+
+
 def evaluate_checkpoint(policy, params, packed, maps, *, limit: int | None, seed: int) -> dict:
     """Open- and closed-loop metrics of ``policy`` with ``params`` on ``packed``
     (the open-loop ones None when the policy's waypoints end before the
@@ -84,13 +88,18 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
 
     Args:
       run_dir: a ``drivee2e train`` run folder.
-      out: output folder (rows already there are reused).
+      out: output folder (rows already there are reused; a folder with
+        other files than a trend's, ``TREND_FOLDER``, is refused).
       suite: suite name / folder (default: the one the run's dataset was built from).
       split: split evaluated.  limit: only its first ``limit`` scenarios.
       mode: ``models.base.as_policy`` mode ("traj" for the open-loop metrics).
     """
 
     run_dir, out = Path(run_dir), Path(out)
+    try:  # rows, table and plot overwrite only a trend folder's own files
+        check_own_folder(out, TREND_FOLDER, redo=True)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
     ckpts = ckpt.list_checkpoints(run_dir)
     if not ckpts:
         raise DriveE2EError(f"{run_dir}: no checkpoints (expected {run_dir}/checkpoints/<epoch>; run `drivee2e train`)")

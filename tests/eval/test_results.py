@@ -8,6 +8,7 @@ import pytest
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.results import (
+    RESULTS_FOLDER,
     RunDir,
     git_state,
     policy_fingerprint,
@@ -16,7 +17,6 @@ from drivee2e_jax.eval.results import (
     run_provenance,
     stored_path,
 )
-from drivee2e_jax.files import LOCK_NAME
 from drivee2e_jax.policy import resolve_policy_path
 
 INFO = {"suite": "s", "split": "val", "num_scenarios": 1, "dt": 0.1,
@@ -131,7 +131,7 @@ def test_a_second_writer_is_refused_and_what_a_failed_run_created_is_removed(tmp
     (out / "notes.txt").write_text("mine")
     with pytest.raises(DriveE2EError, match="not a drivee2e results folder"):
         RunDir(out, INFO)
-    assert sorted(p.name for p in out.iterdir()) == [LOCK_NAME, "notes.txt"]
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]  # refused before the lock: untouched
 
 
 def test_stray_temp_files_are_removed_under_the_lock(tmp_path):
