@@ -45,7 +45,8 @@ The contract (``RunDir``):
   checkpoint file or folder an argument names); a policy is skipped only
   when it matches, and a mismatch stops the run with one line naming the
   policy and what changed (refusing is the safe default: ``--force``, or
-  delete that one file). Remote policies (``remote://``) are never resumed:
+  delete that one file). The policy fingerprint covers the modules the
+  policy file imports from its own folder too (``modules_sha256``). Remote policies (``remote://``) are never resumed:
   the server can serve another policy behind the same address. A corrupt
   policy file stops the run with one line naming it.
 * **Nothing before validation.** ``eval.bench`` writes nothing to the folder
@@ -94,7 +95,7 @@ from drivee2e_jax.files import (
     sha256_file,
     sha256_tree,
 )
-from drivee2e_jax.policy import reference_policy_dir, zoo_weight_files
+from drivee2e_jax.policy import local_modules, reference_policy_dir, zoo_weight_files
 from drivee2e_jax.remote import is_remote_spec
 
 
@@ -165,6 +166,7 @@ POLICY_FINGERPRINT_KEYS = {
     "sha256": "the policy file's content",
     "kwargs": "its make_policy arguments",
     "files_sha256": "the files its arguments name (checkpoint)",
+    "modules_sha256": "the modules it imports from its folder",
     "remote": "the remote spec",
 }
 
@@ -437,7 +439,16 @@ def policy_differences(old: dict | None, new: dict) -> str:
         return "unknown, the file has no fingerprint"
     keys = [k for k in POLICY_FINGERPRINT_KEYS if old.get(k) != new.get(k)]
     keys += sorted(k for k in set(old) | set(new) if k not in POLICY_FINGERPRINT_KEYS and old.get(k) != new.get(k))
-    return ", ".join(POLICY_FINGERPRINT_KEYS.get(k, k) for k in keys)
+    words = []
+    for k in keys:
+        a, b = old.get(k), new.get(k)
+        if k == "modules_sha256":  # name the modules: edited, added or gone
+            a, b = a if isinstance(a, dict) else {}, b if isinstance(b, dict) else {}
+            names = sorted(m for m in set(a) | set(b) if a.get(m) != b.get(m))
+            words.append(f"{POLICY_FINGERPRINT_KEYS[k]} ({', '.join(names)})")
+        else:
+            words.append(POLICY_FINGERPRINT_KEYS.get(k, k))
+    return ", ".join(words)
 
 
 # -- fingerprints and provenance ---------------------------------------------------
@@ -461,15 +472,23 @@ def policy_fingerprint(path: str | Path, kwargs: dict, *, remote_name: str = "")
     for every keyword whose value names an existing file or folder (a
     checkpoint), ``files_sha256[key]`` = ``files.sha256_tree`` of it; for a
     zoo policy without a checkpoint, ``bundled_sha256`` of the weights it
-    loads (``policy.zoo_weight_files``). Only the
-    policy file itself is hashed, not the modules it imports (a change in
-    drivee2e itself is caught by the run's package version). A remote policy
+    loads (``policy.zoo_weight_files``). When the file imports modules of
+    its own folder (``policy.local_modules``: found statically, recursively),
+    ``modules_sha256`` = {their path relative to that folder: sha256}, so
+    editing a helper module refuses a resume as editing the policy file does
+    (the key is left out when there are none, so older fingerprints still
+    match). Modules outside the folder (site-packages) are not hashed; a
+    change in drivee2e itself is caught by the run's package version. A remote policy
     (``remote://``): the spec and the server's reported name; it is never
     resumed (the server can change behind the same address)."""
     if is_remote_spec(path):
         return {"remote": str(path), "server_name": remote_name}
     files = {k: sha256_tree(v) for k, v in sorted(kwargs.items()) if isinstance(v, str) and v and Path(v).exists()}
     out = {"sha256": sha256_file(path), "kwargs": dict(kwargs), "files_sha256": files}
+    root = Path(path).resolve().parent
+    modules = {m.relative_to(root).as_posix(): sha256_file(m) for m in local_modules(path)}
+    if modules:
+        out["modules_sha256"] = modules
     if "checkpoint" not in kwargs:
         bundled = {f.name: sha256_file(f) for f in zoo_weight_files(path)}
         if bundled:  # the zoo's shipped weights decide its learned policies' results
@@ -484,6 +503,8 @@ def policy_provenance(path: str | Path, kwargs: dict, fingerprint: dict, folder:
     out = {"policy": str(path) if is_remote_spec(path) else stored_path(path, folder), "time_utc": utc_now()}
     if "sha256" in fingerprint:
         out["policy_sha256"] = fingerprint["sha256"]
+    if fingerprint.get("modules_sha256"):
+        out["modules_sha256"] = fingerprint["modules_sha256"]
     files = fingerprint.get("files_sha256") or {}
     if files:
         out["files"] = {k: {"path": stored_path(kwargs[k], folder), "sha256": v} for k, v in files.items()}

@@ -165,3 +165,31 @@ def test_a_later_policy_whose_name_shares_a_file_is_refused(tmp_path):
         RunDir(tmp_path / "r", INFO, policies={"x_y": fp})
     with RunDir(tmp_path / "r", INFO, policies={"x/y": fp}) as run:  # the original still resumes
         assert run.done("x/y")
+
+
+def test_a_module_the_policy_imports_from_its_folder_is_fingerprinted(tmp_path):
+    pkg = tmp_path / "mine"
+    (pkg / "lib").mkdir(parents=True)
+    pol = pkg / "pol.py"
+    pol.write_text("import os\nimport helper\nfrom lib import tune\npolicy = None\n")
+    (pkg / "helper.py").write_text("GAIN = 1\nimport pol  # a cycle\n")
+    (pkg / "lib" / "__init__.py").write_text("")
+    (pkg / "lib" / "tune.py").write_text("def f():\n    from . import deep\n")  # relative, inside a function
+    (pkg / "lib" / "deep.py").write_text("K = 1\n")
+    (pkg / "unused.py").write_text("")
+    fp = policy_fingerprint(pol, {})
+    assert sorted(fp["modules_sha256"]) == ["helper.py", "lib/__init__.py", "lib/deep.py", "lib/tune.py"]
+    assert "modules_sha256" not in policy_fingerprint(_policy(tmp_path), {})  # none: older fingerprints still match
+    with RunDir(tmp_path / "r", INFO, policies={"a": fp}) as run:
+        _finish(run, "a")
+    (pkg / "unused.py").write_text("x = 2\n")
+    with RunDir(tmp_path / "r", INFO, policies={"a": policy_fingerprint(pol, {})}) as run:
+        assert run.done("a")  # a file the policy does not import changes nothing
+    (pkg / "lib" / "deep.py").write_text("K = 2\n")  # two imports away
+    with pytest.raises(DriveE2EError) as e:
+        RunDir(tmp_path / "r", INFO, policies={"a": policy_fingerprint(pol, {})})
+    msg = str(e.value)
+    assert msg.startswith("[a] ") and "(changed: the modules it imports from its folder (lib/deep.py))" in msg
+    assert "--force" in msg and "\n" not in msg
+    with RunDir(tmp_path / "r", INFO, force=True, policies={"a": policy_fingerprint(pol, {})}) as run:
+        assert not run.done("a")  # --force redoes it
