@@ -96,7 +96,7 @@ def run(args) -> int:
     from drivee2e_jax.errors import DriveE2EError
 
     _check_args(args)
-    from drivee2e_jax.eval.traces import TRACE_CHUNK, iter_traces
+    from drivee2e_jax.eval.traces import TRACE_CHUNK, check_results, iter_traces
     from drivee2e_jax.observe import registry
     from drivee2e_jax.progress import progress
     from drivee2e_jax.viz.player import PlayerWriter, files_dir
@@ -105,6 +105,7 @@ def run(args) -> int:
     total = sum(n for _, n in plan)
     if not total:
         raise DriveE2EError(f"{args.results_dir}: no episodes to show")
+    check_results(args.results_dir, [name for name, _ in plan])  # stale results: refused before any file is written
     results = Path(args.results_dir)
     title = args.title or results.resolve().name
     writer = PlayerWriter(args.out, title=title, single_file=args.single_file, sensors=not args.no_sensors,

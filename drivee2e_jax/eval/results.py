@@ -49,6 +49,14 @@ The contract (``RunDir``):
   policy file imports from its own folder too (``modules_sha256``). Remote policies (``remote://``) are never resumed:
   the server can serve another policy behind the same address. A corrupt
   policy file stops the run with one line naming it.
+* **Readers check the same fingerprints.** ``view`` / ``export-mcap``
+  (``eval.traces.check_current``) recompute the suite and policy
+  fingerprints and refuse a stale folder (``check_run_current``,
+  ``check_policy_current``) in one line saying what changed.
+* **``--force`` never deletes what drivee2e did not write.** A non-empty
+  folder without run.json is refused with or without ``--force``; under
+  ``--force`` so is a results folder holding any file outside
+  ``RESULTS_FOLDER`` (``files.check_own_folder``), naming the files.
 * **Nothing before validation.** ``eval.bench`` writes nothing to the folder
   before every input is checked and every policy loaded; a run that fails
   before any policy finished removes what it created.
@@ -161,6 +169,12 @@ RESULTS_FOLDER = OwnFolder("results", RUN_JSON, (RUN_JSON, "policies/*.json", *T
                                                  *(f"{sub}/{pattern}" for sub, pattern in TABLE_FOLDERS)))
 #: run.json keys not compared on resume.
 UNCOMPARED = ("provenance",)
+#: What each run.json fingerprint key covers, for "what changed" messages.
+RUN_FINGERPRINT_KEYS = {
+    "suite_sha256": "the suite's scenarios (a scenario, map or suite.json file edited, or the suite regenerated)",
+    "suite_files_sha256": "the suite folder's files (suite.json, a map or a scenario file)",
+    "drivee2e_version": "the drivee2e version",
+}
 #: What each policy fingerprint key means, for "what changed" messages.
 POLICY_FINGERPRINT_KEYS = {
     "sha256": "the policy file's content",
@@ -426,10 +440,53 @@ def run_differences(old: dict, new: dict) -> list[str]:
     for k in sorted((set(old) | set(new)) - set(UNCOMPARED)):
         a, b = old.get(k), new.get(k)
         if k == "fingerprint" and isinstance(a, dict) and isinstance(b, dict):
-            out += [f"fingerprint.{s}" for s in sorted(set(a) | set(b)) if a.get(s) != b.get(s)]
+            out += [f"fingerprint.{s}" for s in fingerprint_differences(a, b)]
         elif a != b:
             out.append(k)
     return out
+
+
+def run_fingerprint(**suite: str) -> dict:
+    """run.json's ``fingerprint``: the suite's (``suite_sha256`` =
+    ``runspec.batch_sha256`` of the evaluated batch, or for a run streamed
+    from a suite folder ``suite_files_sha256`` = ``runspec.folder_fingerprint``)
+    and ``drivee2e_version``. Bench writes it; a resume and every reader of
+    the folder (``check_run_current``) compare it."""
+    return {**suite, "drivee2e_version": package_version()}
+
+
+def fingerprint_differences(old: dict, new: dict) -> list[str]:
+    """The fingerprint keys whose values differ (sorted)."""
+    return [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+
+
+def check_run_current(folder: str | Path, info: dict, fingerprint: dict) -> None:
+    """A reader's side of the resume rule (``view``, ``export-mcap``):
+    DriveE2EError (one line saying what changed) when ``fingerprint``, the
+    run's inputs as they are now (``run_fingerprint``; only the suite keys
+    run.json has need computing), differs from run.json's ``info``: results
+    of an edited suite or another drivee2e version would be re-simulated as if
+    they were the bench's. A run.json without fingerprints is refused too."""
+    stored = info.get("fingerprint") if isinstance(info, dict) else None
+    if not isinstance(stored, dict):
+        raise DriveE2EError(f"{folder}: written by an older drivee2e version (run.json has no fingerprints), so "
+                            "whether its suite is unchanged cannot be checked; re-run `drivee2e bench --force` on it")
+    diff = fingerprint_differences(stored, _plain(fingerprint))
+    if diff:
+        what = "; ".join(RUN_FINGERPRINT_KEYS.get(k, k) for k in diff)
+        raise DriveE2EError(f"{folder}: stale results: {what} changed since `drivee2e bench` wrote them (differs in "
+                            f"{', '.join(f'fingerprint.{k}' for k in diff)}); re-run the bench (--force) first")
+
+
+def check_policy_current(folder: str | Path, name: str, data: dict, fingerprint: dict) -> None:
+    """``check_run_current`` for one policy file: DriveE2EError (one line
+    naming the policy and what changed: the policy file, a module it imports,
+    its arguments, a checkpoint) when ``fingerprint`` (``policy_fingerprint``
+    now) differs from the file's stored one, or it has none."""
+    changed = policy_differences(data.get("fingerprint"), _plain(fingerprint))
+    if changed:
+        raise DriveE2EError(f"[{name}] {folder}: stale results: the policy changed since `drivee2e bench` wrote them "
+                            f"(changed: {changed}); re-run the bench (--force) first")
 
 
 def policy_differences(old: dict | None, new: dict) -> str:
