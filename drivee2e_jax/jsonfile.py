@@ -8,8 +8,14 @@ that is not UTF-8 raises UnicodeDecodeError. :func:`parse_json` and
 :func:`read_json` turn each into :class:`BadJSON`, a one-line
 ``DriveE2EError`` naming the file, the place and what was expected, whose
 parts (``where``, ``expected``, ``got``) also serve callers that collect
-problems (``scenario.schema``). Every reader of suite.json, scenario and map
-files, results files and policy / config JSON goes through here.
+problems (``scenario.schema``). An object that repeats a key is refused too
+(``"ego_track_id": 1, "ego_track_id": 4`` would silently keep the last): the
+keys orjson parsed are counted against the text's colons
+(``files._keys_all_unique``), and only on a mismatch does the standard
+library parse again to name the key. Every reader of suite.json, scenario
+and map files, results files and policy / config JSON goes through here
+(``files.loads_json`` / ``read_json`` are the same rule without the guards,
+for drivee2e's own files).
 
 orjson (5x json's speed on a twin15 scenario file) parses first when it is
 installed; what it refuses (NaN / Infinity literals, integers beyond 64
@@ -26,6 +32,7 @@ import sys
 from typing import Any
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import DuplicateKeyError, _keys_all_unique, _unique_pairs
 
 try:  # a dependency of the package, but a JAX-free serving environment may lack it
     import orjson
@@ -45,6 +52,11 @@ class BadJSON(DriveE2EError):
         super().__init__(f"{name}: {self.detail}")
 
     @property
+    def reason(self) -> str:
+        """``detail`` (the name ``files.JSONFileError`` gives it)."""
+        return self.detail
+
+    @property
     def detail(self) -> str:
         """The message without the file name: ``[WHERE: ]expected ..., got ...``
         (for callers that say what the file is: ``FILE: unreadable manifest (DETAIL)``)."""
@@ -56,10 +68,14 @@ def parse_json(data: bytes | bytearray | memoryview | str, name: str = "JSON tex
     is not UTF-8, not JSON, holds a number with more digits than Python
     converts, or nests deeper than the decoder's recursion limit."""
     if orjson is not None:
+        raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
         try:
-            return orjson.loads(data)
+            value = orjson.loads(raw)
         except (orjson.JSONDecodeError, RecursionError):
             pass  # a strict subset: NaN / Infinity, > 64-bit integers, errors: the standard library decides
+        else:  # orjson keeps the last of repeated keys: count them (files._keys_all_unique)
+            if _keys_all_unique(raw, value):
+                return value
     if isinstance(data, str):
         text = data
     else:
@@ -68,7 +84,9 @@ def parse_json(data: bytes | bytearray | memoryview | str, name: str = "JSON tex
         except UnicodeDecodeError as e:
             raise BadJSON(name, "", "UTF-8 text", f"byte {e.start} undecodable ({e.reason})") from None
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=_unique_pairs)
+    except DuplicateKeyError as e:
+        raise BadJSON(name, "", "each key once per object", f"duplicate key {e.key!r}") from None
     except json.JSONDecodeError as e:
         raise BadJSON(name, f"line {e.lineno} column {e.colno}", "valid JSON", e.msg) from None
     except RecursionError:

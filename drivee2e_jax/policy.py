@@ -18,7 +18,7 @@ A policy file (``--policy path/to/file.py``) defines either a module-level
 
 from __future__ import annotations
 
-import json
+import ast
 import os
 import sys
 import traceback
@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 from drivee2e_jax.errors import DriveE2EError, one_line
+from drivee2e_jax.files import DuplicateKeyError, loads_json
 from drivee2e_jax.hostapi import HostPolicy, load_policy_object, validate_host_policy
 from drivee2e_jax.remote import RemotePolicy, is_remote_spec, parse_remote_spec
 
@@ -186,7 +187,9 @@ def parse_policy_spec(spec: str) -> tuple[Path | str, dict, str]:
             if not eq or not key.strip().isidentifier():
                 raise DriveE2EError(f"--policy {spec}: expected PATH:key=value[,key=value...], got {item!r}")
             try:
-                kwargs[key.strip()] = json.loads(value)
+                kwargs[key.strip()] = loads_json(value)
+            except DuplicateKeyError as e:
+                raise DriveE2EError(f"--policy {spec}: {key.strip()}={value}: {e}") from None
             except ValueError:
                 kwargs[key.strip()] = value
     name = kwargs.pop("name", "")
@@ -241,3 +244,76 @@ def zoo_weight_files(policy_path: str | Path) -> list[Path]:
 def reference_policy_names() -> tuple[str, ...]:
     """Every policy name the zoo ships (file stems of ``reference_policy_dir()``)."""
     return tuple(sorted(f.stem for f in reference_policy_dir().glob("*.py") if not f.name.startswith("_")))
+
+
+#: ``local_modules`` follows at most this many modules from one policy file.
+MAX_LOCAL_MODULES = 1000
+
+
+def local_modules(path: str | Path) -> list[Path]:
+    """The user's own modules a policy file imports, directly or through each
+    other: the files below the policy file's folder that its ``import`` /
+    ``from ... import`` statements (anywhere in the file, found with ``ast``,
+    nothing executed) name, resolved as Python would with that folder on the
+    import path (``a.b`` -> ``a/__init__.py`` and ``a/b.py`` or
+    ``a/b/__init__.py``; ``from . import x`` relative to the importing file;
+    ``from a import b``: ``a/b.py`` too when it is a submodule). Modules
+    elsewhere (the standard library, site-packages, drivee2e itself unless it
+    lives in that folder) are not followed. Recursive, each file once (cycles
+    end), at most ``MAX_LOCAL_MODULES``; a file that does not parse is listed
+    but not followed. Sorted absolute paths, the policy file itself excluded."""
+    policy = Path(path).resolve()
+    root = policy.parent
+    seen, todo = {policy}, [policy]
+    while todo and len(seen) <= MAX_LOCAL_MODULES:
+        for f in _imported_files(todo.pop(), root):
+            if f not in seen:
+                seen.add(f)
+                todo.append(f)
+    return sorted(seen - {policy})
+
+
+def _imported_files(module: Path, root: Path) -> list[Path]:
+    """The files under ``root`` that the imports of ``module`` name."""
+    try:
+        tree = ast.parse(module.read_bytes(), filename=str(module))
+    except (OSError, SyntaxError, ValueError, RecursionError):
+        return []
+    out: list[Path] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                out += _module_files(root, alias.name.split("."))
+        elif isinstance(node, ast.ImportFrom):
+            base = root
+            if node.level:
+                base = module.parent
+                for _ in range(node.level - 1):
+                    base = base.parent
+            if not base.is_relative_to(root):
+                continue
+            parts = node.module.split(".") if node.module else []
+            out += _module_files(base, parts)
+            for alias in node.names:
+                if alias.name != "*":
+                    out += _module_files(base, [*parts, alias.name])
+    return [f.resolve() for f in out if f.resolve().is_relative_to(root)]
+
+
+def _module_files(base: Path, parts: list[str]) -> list[Path]:
+    """The files importing ``.``-joined ``parts`` from folder ``base`` runs:
+    each package's ``__init__.py`` on the way and the module itself."""
+    out, folder = [], base
+    for i, name in enumerate(parts):
+        if (folder / name / "__init__.py").is_file():
+            out.append(folder / name / "__init__.py")
+            folder = folder / name
+        elif (folder / f"{name}.py").is_file():
+            if i == len(parts) - 1:
+                out.append(folder / f"{name}.py")
+            break
+        elif (folder / name).is_dir():  # a namespace package
+            folder = folder / name
+        else:
+            break
+    return out

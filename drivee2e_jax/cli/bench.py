@@ -37,9 +37,11 @@ holds the ego responsible for; the tables show DS and SR both ways anyway.
 --agents idm makes the other vehicles react (IDM) instead of replaying logs.
 Results go to results/<suite>-<split>[-<task>][-<variant>]/ unless --out is given. One run at a
 time writes a folder (a second one stops, naming the first). A rerun resumes: a finished policy is
-skipped only while the suite content, settings, package version and its policy file / arguments /
-checkpoint are unchanged (else the run stops and says what changed; --force starts over); remote
-policies are always re-run. The tables list every finished policy of the folder (docs/results.md).
+skipped only while the suite content, settings, package version and its policy file / the modules
+it imports from its folder / arguments / checkpoint are unchanged (else the run stops and says what
+changed; --force starts over); remote policies are always re-run. --force never deletes a file
+drivee2e did not write: a folder without run.json, or holding other files, is refused. The tables
+list every finished policy of the folder (docs/results.md).
 """
 
 
@@ -64,7 +66,7 @@ def add_parser(subparsers) -> None:
         "P:key=value,... (name=... renames it in the results); repeatable (default: log_replay, expert, stop)",
     )
     p.add_argument("--out", type=Path, default=None, help="results folder (default: results/<suite>-<split>)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing results folder")
+    p.add_argument("--force", action="store_true", help="redo an existing results folder (only one holding nothing but bench's files)")
     p.add_argument(
         "--preset",
         default="paper",

@@ -36,7 +36,7 @@ def add_parser(subparsers) -> None:
                    help="scenario id to export; repeatable (default: every scenario of the run)")
     p.add_argument("--out", type=Path, required=True, metavar="FILE.mcap", help="output file")
     p.add_argument("--no-sensors", action="store_true", help="leave out the BEV and LiDAR topics (smaller, faster)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing output file")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output file (only one drivee2e wrote)")
     p.set_defaults(func=run)
 
 
@@ -50,7 +50,9 @@ def run(args) -> int:
         raise DriveE2EError(f"{out}: is a folder; expected a file name ending in .mcap")
 
     from drivee2e_jax.eval.traces import trace_episodes
-    from drivee2e_jax.io.mcap_export import topics, write_mcap
+    from drivee2e_jax.io.mcap_export import check_overwrite, topics, write_mcap
+
+    check_overwrite(out)  # --force rewrites only an MCAP file drivee2e wrote
     from drivee2e_jax.observe import registry
 
     traces = trace_episodes(args.results, args.policy, args.scenarios,

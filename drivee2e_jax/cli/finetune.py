@@ -51,7 +51,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--log-every", type=int, default=5, help="steps between log lines (default: 5)")
     p.add_argument("--ckpt-every", type=int, default=100, help="steps between checkpoints (default: 100)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
-    p.add_argument("--force", action="store_true", help="discard an existing run in --out")
+    p.add_argument("--force", action="store_true", help="discard an existing run in --out (only one holding nothing but a run's files)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

@@ -78,7 +78,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--time-limit", type=float, default=None, metavar="MIN",
                    help="stop with a checkpoint after this many minutes of training (--resume continues)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
-    p.add_argument("--force", action="store_true", help="discard an existing run in --out")
+    p.add_argument("--force", action="store_true", help="discard an existing run in --out (only one holding nothing but a run's files)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

@@ -100,7 +100,7 @@ def add_parser(subparsers) -> None:
     g.add_argument("--name", default="twin15", help="built-in suite to generate (default: twin15)")
     g.add_argument("--seed", type=int, default=0, help="generator seed (default: 0)")
     g.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder to write (new or empty)")
-    g.add_argument("--force", action="store_true", help="replace an existing suite folder at DIR")
+    g.add_argument("--force", action="store_true", help="replace an existing suite folder at DIR (only one holding nothing but suite files)")
     g.add_argument("--scenarios", type=int, default=None, metavar="N",
                    help="number of scenarios, a multiple of 800 (twin15 only; default: 800)")
     g.set_defaults(func=run_generate)
@@ -144,7 +144,7 @@ def add_parser(subparsers) -> None:
     m.add_argument("--window-s", type=float, default=None, metavar="S",
                    help="cut recordings into windows of S seconds (default: whole recordings)")
     m.add_argument("--name", default=None, help="suite name (default: the folder name of --out)")
-    m.add_argument("--force", action="store_true", help="replace an existing suite folder at DIR")
+    m.add_argument("--force", action="store_true", help="replace an existing suite folder at DIR (only one holding nothing but suite files)")
     m.add_argument("--verbose", "-v", action="store_true", help="print every skipped item and note")
     m.set_defaults(func=run_import)
 

@@ -32,7 +32,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("config", type=Path, help="experiment config (.toml)")
     p.add_argument("--out", type=Path, default=None,
                    help="sweep folder (default: [sweep] out, else results/sweeps/<name>)")
-    p.add_argument("--force", action="store_true", help="start over: redo every run, even under a changed config")
+    p.add_argument("--force", action="store_true", help="start over: redo every run, even under a changed config (only a folder holding nothing but the sweep's files)")
     p.add_argument("--dry-run", action="store_true", help="list the runs (and which are complete); run nothing")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)

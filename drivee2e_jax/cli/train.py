@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from drivee2e_jax.cli.common import add_command
@@ -37,18 +36,19 @@ def add_parser(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="init and shuffle seed (default: 0)")
     p.add_argument("--log-every", type=int, default=10, help="steps between log lines (default: 10)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last epoch")
-    p.add_argument("--force", action="store_true", help="discard an existing run in --out")
+    p.add_argument("--force", action="store_true", help="discard an existing run in --out (only one holding nothing but a run's files)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.files import loads_json
     from drivee2e_jax.progress import progress_bars
     from drivee2e_jax.train.loop import TrainConfig, train
 
     try:
-        model_cfg = json.loads(args.model_config)
+        model_cfg = loads_json(args.model_config)
     except ValueError as e:
         raise DriveE2EError(f"--model-config: not JSON ({e})") from e
     if not isinstance(model_cfg, dict):

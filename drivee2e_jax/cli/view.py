@@ -53,7 +53,8 @@ def add_parser(subparsers) -> None:
                    help="embed every episode in the page (no <PAGE>_files folder; for a few episodes)")
     p.add_argument("--chunk-size", type=int, default=None, metavar="N",
                    help="episodes rendered per batch (memory vs speed; default: 8)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing page and its episode folder")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite an existing page and its episode folder (only ones drivee2e wrote)")
     p.add_argument("--title", default=None, help="page title (default: the results folder's name)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -62,7 +63,7 @@ def add_parser(subparsers) -> None:
 def _check_args(args) -> None:
     """One-line DriveE2EError for a bad results folder, --out or number."""
     from drivee2e_jax.errors import DriveE2EError
-    from drivee2e_jax.viz.player import files_dir
+    from drivee2e_jax.viz.player import check_overwrite, files_dir
 
     if not Path(args.results_dir).is_dir():
         raise DriveE2EError(f"{args.results_dir}: no such results folder")
@@ -72,6 +73,7 @@ def _check_args(args) -> None:
     for path in (out, files_dir(out)):
         if path.exists() and not args.force and not (args.single_file and path != out):
             raise DriveE2EError(f"--out {out}: {path} exists; use --force to overwrite")
+    check_overwrite(out, single_file=args.single_file)  # --force rewrites only the player's own files
     if args.limit is not None and args.limit < 1:
         raise DriveE2EError(f"--limit {args.limit}: expected a positive number of scenarios")
     if args.chunk_size is not None and args.chunk_size < 1:
@@ -94,7 +96,7 @@ def run(args) -> int:
     from drivee2e_jax.errors import DriveE2EError
 
     _check_args(args)
-    from drivee2e_jax.eval.traces import TRACE_CHUNK, iter_traces
+    from drivee2e_jax.eval.traces import TRACE_CHUNK, check_results, iter_traces
     from drivee2e_jax.observe import registry
     from drivee2e_jax.progress import progress
     from drivee2e_jax.viz.player import PlayerWriter, files_dir
@@ -103,6 +105,7 @@ def run(args) -> int:
     total = sum(n for _, n in plan)
     if not total:
         raise DriveE2EError(f"{args.results_dir}: no episodes to show")
+    check_results(args.results_dir, [name for name, _ in plan])  # stale results: refused before any file is written
     results = Path(args.results_dir)
     title = args.title or results.resolve().name
     writer = PlayerWriter(args.out, title=title, single_file=args.single_file, sensors=not args.no_sensors,

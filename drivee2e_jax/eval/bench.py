@@ -9,7 +9,6 @@ match (the results folder's rules: ``eval.results``).
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import importlib.metadata
 import time
 from collections.abc import Callable
@@ -30,12 +29,12 @@ from drivee2e_jax.eval.results import (
     RunDir,
     check_policy_file_names,
     event_key,
-    package_version,
     policy_fingerprint,
     policy_provenance,
+    run_fingerprint,
     run_provenance,
 )
-from drivee2e_jax.eval.runspec import RunSpec, batch_sha256, check_dt_against_logs, pick_split
+from drivee2e_jax.eval.runspec import RunSpec, batch_sha256, check_dt_against_logs, folder_fingerprint, pick_split
 from drivee2e_jax.eval.stream import evaluate_stream, shards_of
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, finite, format_tables, summarize
 from drivee2e_jax.eval.tasks import add_task_success
@@ -168,8 +167,7 @@ def run_bench(cfg: BenchConfig, print_fn: Callable[[str], None] = print) -> dict
     out = Path(cfg.out or spec.default_out())
     spec = spec.resolve(suite, run_batch)
     run_info = {**spec.to_json(),  # run.json: the spec + what resuming must also match
-                "fingerprint": {"suite_sha256": batch_sha256(evaluated),
-                                "drivee2e_version": package_version()}}
+                "fingerprint": run_fingerprint(suite_sha256=batch_sha256(evaluated))}
     source = None if cfg.shard_size is None else _InMemoryShards(evaluated, cfg.shard_size)
     return _open_and_run(cfg, spec, run_info, out, suite.name, suite.version, run_batch, task, policies,
                          fingerprints, policy_kwargs, names, multi, print_fn, source, lambda: suite.maps)
@@ -223,24 +221,6 @@ class _FolderShards:
             yield rows, packed
 
 
-def folder_fingerprint(index, split: str, n: int) -> str:
-    """Hex sha256 of a streamed folder run's inputs without reading every
-    scenario: suite.json and the map files by content, the split's first
-    ``n`` scenario files by name, size and modification time (hashing the
-    content of a suite larger than memory would read it twice)."""
-    h = hashlib.sha256()
-    folder = Path(index.folder)
-    for rel in ["suite.json", *sorted(f"maps/{p.name}" for p in (folder / "maps").glob("*.json"))]:
-        data = (folder / rel).read_bytes()
-        h.update(f"{rel}:{len(data)}\n".encode())
-        h.update(data)
-    for row in index.rows(split)[:n]:
-        rel = f"scenarios/{index.ids[row]}.json"
-        st = (folder / rel).stat()
-        h.update(f"{rel}:{st.st_size}:{st.st_mtime_ns}\n".encode())
-    return h.hexdigest()
-
-
 def _run_bench_folder_stream(cfg: BenchConfig, print_fn) -> dict:
     """``run_bench`` for ``--shard-size`` on a suite folder: the folder is never
     read whole (``scenario.stream``); the task filter is not available here."""
@@ -261,8 +241,7 @@ def _run_bench_folder_stream(cfg: BenchConfig, print_fn) -> dict:
     out = Path(cfg.out or spec.default_out())
     spec = dataclasses.replace(spec, suite_version=index.version, num_scenarios=n, variant_removed=None)
     run_info = {**spec.to_json(),
-                "fingerprint": {"suite_files_sha256": folder_fingerprint(index, spec.split, n),
-                                "drivee2e_version": package_version()}}
+                "fingerprint": run_fingerprint(suite_files_sha256=folder_fingerprint(index, spec.split, n))}
     source = _FolderShards(index, spec.split, n, cfg.shard_size, spec.dt)
     return _open_and_run(cfg, spec, run_info, out, index.name, index.version, None, task, policies,
                          fingerprints, policy_kwargs, names, False, print_fn, source, lambda: index.maps)

@@ -36,14 +36,13 @@ second jerk definition: the report shows one jerk, defined in the legend).
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval import plots
 from drivee2e_jax.eval.summary import BEHAVIOR_ORDER, CI_MIN_N, CI_RESAMPLES, CI_SEED, summarize
-from drivee2e_jax.files import atomic_write_text
+from drivee2e_jax.files import atomic_write_text, read_json
 from drivee2e_jax.metrics.episode import COUNT_COLUMNS
 
 #: Integer columns that are event counts (totals reported), besides the
@@ -79,7 +78,7 @@ class _Run:
 
     def __init__(self, run_dir: Path):
         self.dir = run_dir
-        summary = json.loads((run_dir / "summary.json").read_text())
+        summary = _read_json(run_dir / "summary.json", required=True)
         self.info = summary.get("run") or _read_json(run_dir / "run.json")
         self.columns, self.rows = load_rows(run_dir / "scenarios.csv")
         self.rep_key = next((k for k in REPETITION_KEYS if k in self.columns), None)
@@ -146,7 +145,7 @@ def _join_timing(path: Path, columns: list[str], rows: list[dict]) -> None:
     if not path.is_file():
         return
     try:
-        timing = json.loads(path.read_text(encoding="utf-8"))["rows"]
+        timing = read_json(path)["rows"]
         by_key = {(str(t["policy"]), str(t["scenario_id"]), int(float(t.get("repetition") or 0))): t
                   for t in timing}
     except (ValueError, KeyError, TypeError, AttributeError):
@@ -645,5 +644,12 @@ def _is_number(v: str) -> bool:
     return True
 
 
-def _read_json(path: Path) -> dict:
-    return json.loads(path.read_text()) if path.exists() else {}
+def _read_json(path: Path, required: bool = False) -> dict:
+    """A JSON file of the results folder ({} when missing and not ``required``);
+    DriveE2EError (one line) when unreadable, not JSON or with a repeated key."""
+    if not required and not path.exists():
+        return {}
+    try:
+        return read_json(path)
+    except (OSError, ValueError) as e:
+        raise DriveE2EError(f"{e}" if isinstance(e, ValueError) else f"{path}: unreadable ({e})") from None

@@ -45,9 +45,18 @@ The contract (``RunDir``):
   checkpoint file or folder an argument names); a policy is skipped only
   when it matches, and a mismatch stops the run with one line naming the
   policy and what changed (refusing is the safe default: ``--force``, or
-  delete that one file). Remote policies (``remote://``) are never resumed:
+  delete that one file). The policy fingerprint covers the modules the
+  policy file imports from its own folder too (``modules_sha256``). Remote policies (``remote://``) are never resumed:
   the server can serve another policy behind the same address. A corrupt
   policy file stops the run with one line naming it.
+* **Readers check the same fingerprints.** ``view`` / ``export-mcap``
+  (``eval.traces.check_current``) recompute the suite and policy
+  fingerprints and refuse a stale folder (``check_run_current``,
+  ``check_policy_current``) in one line saying what changed.
+* **``--force`` never deletes what drivee2e did not write.** A non-empty
+  folder without run.json is refused with or without ``--force``; under
+  ``--force`` so is a results folder holding any file outside
+  ``RESULTS_FOLDER`` (``files.check_own_folder``), naming the files.
 * **Nothing before validation.** ``eval.bench`` writes nothing to the folder
   before every input is checked and every policy loaded; a run that fails
   before any policy finished removes what it created.
@@ -80,8 +89,11 @@ from drivee2e_jax.eval.runspec import RUN_JSON
 from drivee2e_jax.files import (
     LOCK_NAME,
     FolderLocked,
+    ForeignFiles,
+    OwnFolder,
     atomic_write_json,
     atomic_write_text,
+    check_own_folder,
     is_stray_temp_file,
     json_default,
     lock_folder,
@@ -90,7 +102,7 @@ from drivee2e_jax.files import (
     sha256_tree,
 )
 from drivee2e_jax.jsonfile import BadJSON, read_json
-from drivee2e_jax.policy import reference_policy_dir, zoo_weight_files
+from drivee2e_jax.policy import local_modules, reference_policy_dir, zoo_weight_files
 from drivee2e_jax.remote import is_remote_spec
 
 
@@ -146,15 +158,28 @@ def _csv_value(v):
 
 #: Files the combined tables consist of (rewritten after every run; removed by ``--force``).
 TABLE_FILES = ("scenarios.csv", "scenarios.json", "timing.json", "summary.json", "report.md")
+#: The figures ``eval.plots.write_plots`` draws into ``plots/``.
+PLOT_FILES = ("sr_by_behavior.png", "ds_by_behavior.png", "infractions_per_km.png", "comfort.png")
 #: Folders of per-policy outputs derived from the policy files (removed by ``--force``).
-TABLE_FOLDERS = (("leaderboard", "*.json"), ("plots", "*.png"))
+TABLE_FOLDERS = (("leaderboard", "*.json"), *(("plots", name) for name in PLOT_FILES))
+#: What a results folder holds: ``--force`` redoes only a folder with run.json
+#: and no other files than these (``files.check_own_folder``).
+RESULTS_FOLDER = OwnFolder("results", RUN_JSON, (RUN_JSON, "policies/*.json", *TABLE_FILES,
+                                                 *(f"{sub}/{pattern}" for sub, pattern in TABLE_FOLDERS)))
 #: run.json keys not compared on resume.
 UNCOMPARED = ("provenance",)
+#: What each run.json fingerprint key covers, for "what changed" messages.
+RUN_FINGERPRINT_KEYS = {
+    "suite_sha256": "the suite's scenarios (a scenario, map or suite.json file edited, or the suite regenerated)",
+    "suite_files_sha256": "the suite folder's files (suite.json, a map or a scenario file)",
+    "drivee2e_version": "the drivee2e version",
+}
 #: What each policy fingerprint key means, for "what changed" messages.
 POLICY_FINGERPRINT_KEYS = {
     "sha256": "the policy file's content",
     "kwargs": "its make_policy arguments",
     "files_sha256": "the files its arguments name (checkpoint)",
+    "modules_sha256": "the modules it imports from its folder",
     "remote": "the remote spec",
 }
 
@@ -167,12 +192,14 @@ class RunDir:
 
     * takes ``lock_folder(path)`` (held until ``close``; DriveE2EError naming
       the holder when another run has it) and removes stray temp files;
-    * refuses (DriveE2EError, one line) a folder of a different run (a
-      ``run_info`` key or fingerprint differs), written by an older version
-      (no ``fingerprint`` in run.json), that is not a results folder, with a
-      corrupt policy file, or holding a policy of ``policies`` whose stored
-      fingerprint differs; ``force`` removes the old policy files and tables
-      instead;
+    * refuses (DriveE2EError, one line) a folder that is not a results
+      folder (not empty, no run.json: checked before the lock, so it gets no
+      lock file), a folder of a different run (a ``run_info`` key or
+      fingerprint differs), written by an older version (no ``fingerprint``
+      in run.json), with a corrupt policy file, or holding a policy of
+      ``policies`` whose stored fingerprint differs; ``force`` removes the
+      old policy files and tables instead, and only from a folder holding
+      nothing but ``RESULTS_FOLDER``'s files (else it is refused naming them);
     * then writes ``run.json`` = ``run_info`` + ``{"provenance": ...}``.
 
     Args:
@@ -194,6 +221,8 @@ class RunDir:
         self.info = _plain(run_info)
         self.policies = dict(policies or {})
         self._created = not self.path.exists()
+        self._stack = None
+        self._check_own(force)  # before the lock: a folder refused gets no lock file
         self._stack = contextlib.ExitStack()
         try:
             self._stack.enter_context(lock_folder(self.path, hint="wait for it to finish or use another --out"))
@@ -201,6 +230,7 @@ class RunDir:
             raise DriveE2EError(str(e)) from None
         self._fresh = not self._contents()
         try:
+            self._check_own(force)  # again, under the lock
             remove_stray_temp_files(self.path)
             if force:
                 self._clear()
@@ -251,6 +281,15 @@ class RunDir:
             shutil.rmtree(self.path, ignore_errors=True)
 
     # -- checks ------------------------------------------------------------------
+    def _check_own(self, force: bool) -> None:
+        """DriveE2EError (one line naming the files) for a folder that is not
+        drivee2e's: not empty and without run.json, or, with ``force``,
+        holding a file a results folder does not have (``RESULTS_FOLDER``)."""
+        try:
+            check_own_folder(self.path, RESULTS_FOLDER, redo=force)
+        except ForeignFiles as e:
+            raise DriveE2EError(str(e)) from None
+
     def _clear(self) -> None:
         """``--force``: remove the old policy files and the tables made from them."""
         for f in self.policy_dir.glob("*.json"):
@@ -263,10 +302,7 @@ class RunDir:
 
     def _check_run(self) -> None:
         meta = self.path / RUN_JSON
-        if not meta.exists():
-            if self._contents():
-                raise DriveE2EError(f"{self.path}: exists and is not a drivee2e results folder; "
-                                    "use --force or another --out")
+        if not meta.exists():  # an empty folder (``_check_own`` refused any other)
             return
         try:
             old = read_json(meta)
@@ -403,10 +439,53 @@ def run_differences(old: dict, new: dict) -> list[str]:
     for k in sorted((set(old) | set(new)) - set(UNCOMPARED)):
         a, b = old.get(k), new.get(k)
         if k == "fingerprint" and isinstance(a, dict) and isinstance(b, dict):
-            out += [f"fingerprint.{s}" for s in sorted(set(a) | set(b)) if a.get(s) != b.get(s)]
+            out += [f"fingerprint.{s}" for s in fingerprint_differences(a, b)]
         elif a != b:
             out.append(k)
     return out
+
+
+def run_fingerprint(**suite: str) -> dict:
+    """run.json's ``fingerprint``: the suite's (``suite_sha256`` =
+    ``runspec.batch_sha256`` of the evaluated batch, or for a run streamed
+    from a suite folder ``suite_files_sha256`` = ``runspec.folder_fingerprint``)
+    and ``drivee2e_version``. Bench writes it; a resume and every reader of
+    the folder (``check_run_current``) compare it."""
+    return {**suite, "drivee2e_version": package_version()}
+
+
+def fingerprint_differences(old: dict, new: dict) -> list[str]:
+    """The fingerprint keys whose values differ (sorted)."""
+    return [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+
+
+def check_run_current(folder: str | Path, info: dict, fingerprint: dict) -> None:
+    """A reader's side of the resume rule (``view``, ``export-mcap``):
+    DriveE2EError (one line saying what changed) when ``fingerprint``, the
+    run's inputs as they are now (``run_fingerprint``; only the suite keys
+    run.json has need computing), differs from run.json's ``info``: results
+    of an edited suite or another drivee2e version would be re-simulated as if
+    they were the bench's. A run.json without fingerprints is refused too."""
+    stored = info.get("fingerprint") if isinstance(info, dict) else None
+    if not isinstance(stored, dict):
+        raise DriveE2EError(f"{folder}: written by an older drivee2e version (run.json has no fingerprints), so "
+                            "whether its suite is unchanged cannot be checked; re-run `drivee2e bench --force` on it")
+    diff = fingerprint_differences(stored, _plain(fingerprint))
+    if diff:
+        what = "; ".join(RUN_FINGERPRINT_KEYS.get(k, k) for k in diff)
+        raise DriveE2EError(f"{folder}: stale results: {what} changed since `drivee2e bench` wrote them (differs in "
+                            f"{', '.join(f'fingerprint.{k}' for k in diff)}); re-run the bench (--force) first")
+
+
+def check_policy_current(folder: str | Path, name: str, data: dict, fingerprint: dict) -> None:
+    """``check_run_current`` for one policy file: DriveE2EError (one line
+    naming the policy and what changed: the policy file, a module it imports,
+    its arguments, a checkpoint) when ``fingerprint`` (``policy_fingerprint``
+    now) differs from the file's stored one, or it has none."""
+    changed = policy_differences(data.get("fingerprint"), _plain(fingerprint))
+    if changed:
+        raise DriveE2EError(f"[{name}] {folder}: stale results: the policy changed since `drivee2e bench` wrote them "
+                            f"(changed: {changed}); re-run the bench (--force) first")
 
 
 def policy_differences(old: dict | None, new: dict) -> str:
@@ -416,7 +495,16 @@ def policy_differences(old: dict | None, new: dict) -> str:
         return "unknown, the file has no fingerprint"
     keys = [k for k in POLICY_FINGERPRINT_KEYS if old.get(k) != new.get(k)]
     keys += sorted(k for k in set(old) | set(new) if k not in POLICY_FINGERPRINT_KEYS and old.get(k) != new.get(k))
-    return ", ".join(POLICY_FINGERPRINT_KEYS.get(k, k) for k in keys)
+    words = []
+    for k in keys:
+        a, b = old.get(k), new.get(k)
+        if k == "modules_sha256":  # name the modules: edited, added or gone
+            a, b = a if isinstance(a, dict) else {}, b if isinstance(b, dict) else {}
+            names = sorted(m for m in set(a) | set(b) if a.get(m) != b.get(m))
+            words.append(f"{POLICY_FINGERPRINT_KEYS[k]} ({', '.join(names)})")
+        else:
+            words.append(POLICY_FINGERPRINT_KEYS.get(k, k))
+    return ", ".join(words)
 
 
 # -- fingerprints and provenance ---------------------------------------------------
@@ -440,15 +528,23 @@ def policy_fingerprint(path: str | Path, kwargs: dict, *, remote_name: str = "")
     for every keyword whose value names an existing file or folder (a
     checkpoint), ``files_sha256[key]`` = ``files.sha256_tree`` of it; for a
     zoo policy without a checkpoint, ``bundled_sha256`` of the weights it
-    loads (``policy.zoo_weight_files``). Only the
-    policy file itself is hashed, not the modules it imports (a change in
-    drivee2e itself is caught by the run's package version). A remote policy
+    loads (``policy.zoo_weight_files``). When the file imports modules of
+    its own folder (``policy.local_modules``: found statically, recursively),
+    ``modules_sha256`` = {their path relative to that folder: sha256}, so
+    editing a helper module refuses a resume as editing the policy file does
+    (the key is left out when there are none, so older fingerprints still
+    match). Modules outside the folder (site-packages) are not hashed; a
+    change in drivee2e itself is caught by the run's package version. A remote policy
     (``remote://``): the spec and the server's reported name; it is never
     resumed (the server can change behind the same address)."""
     if is_remote_spec(path):
         return {"remote": str(path), "server_name": remote_name}
     files = {k: sha256_tree(v) for k, v in sorted(kwargs.items()) if isinstance(v, str) and v and Path(v).exists()}
     out = {"sha256": sha256_file(path), "kwargs": dict(kwargs), "files_sha256": files}
+    root = Path(path).resolve().parent
+    modules = {m.relative_to(root).as_posix(): sha256_file(m) for m in local_modules(path)}
+    if modules:
+        out["modules_sha256"] = modules
     if "checkpoint" not in kwargs:
         bundled = {f.name: sha256_file(f) for f in zoo_weight_files(path)}
         if bundled:  # the zoo's shipped weights decide its learned policies' results
@@ -463,6 +559,8 @@ def policy_provenance(path: str | Path, kwargs: dict, fingerprint: dict, folder:
     out = {"policy": str(path) if is_remote_spec(path) else stored_path(path, folder), "time_utc": utc_now()}
     if "sha256" in fingerprint:
         out["policy_sha256"] = fingerprint["sha256"]
+    if fingerprint.get("modules_sha256"):
+        out["modules_sha256"] = fingerprint["modules_sha256"]
     files = fingerprint.get("files_sha256") or {}
     if files:
         out["files"] = {k: {"path": stored_path(kwargs[k], folder), "sha256": v} for k, v in files.items()}

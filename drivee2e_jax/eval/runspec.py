@@ -147,6 +147,24 @@ def batch_sha256(packed) -> str:
     return h.hexdigest()
 
 
+def folder_fingerprint(index, split: str, n: int) -> str:
+    """Hex sha256 of a streamed folder run's inputs without reading every
+    scenario: suite.json and the map files by content, the split's first
+    ``n`` scenario files by name, size and modification time (hashing the
+    content of a suite larger than memory would read it twice)."""
+    h = hashlib.sha256()
+    folder = Path(index.folder)
+    for rel in ["suite.json", *sorted(f"maps/{p.name}" for p in (folder / "maps").glob("*.json"))]:
+        data = (folder / rel).read_bytes()
+        h.update(f"{rel}:{len(data)}\n".encode())
+        h.update(data)
+    for row in index.rows(split)[:n]:
+        rel = f"scenarios/{index.ids[row]}.json"
+        st = (folder / rel).stat()
+        h.update(f"{rel}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()
+
+
 def _hash_array(h, name: str, value) -> None:
     a = np.ascontiguousarray(np.asarray(value))
     if a.dtype.kind in "OUS":  # text columns: their values, not object pointers

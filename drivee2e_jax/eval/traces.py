@@ -53,7 +53,8 @@ import numpy as np
 from drivee2e_jax import hostbridge, replay
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import begin_rollout, device_batch, with_policy_sensors
-from drivee2e_jax.eval.runspec import RUN_JSON, RunSpec
+from drivee2e_jax.eval.results import check_policy_current, check_run_current, policy_fingerprint, run_fingerprint
+from drivee2e_jax.eval.runspec import RUN_JSON, RunSpec, batch_sha256, folder_fingerprint
 from drivee2e_jax.geometry import from_frame
 from drivee2e_jax.jsonfile import read_json
 from drivee2e_jax.metrics import episode as ep
@@ -67,6 +68,7 @@ from drivee2e_jax.observe.sensor_api import SensorContext, SensorFrames
 from drivee2e_jax.observe.sensors import SensorConfig
 from drivee2e_jax.policy import load_policy, resolve_policy_path
 from drivee2e_jax.rollout import ControlTiming, Rollout, balanced_chunk, episode_results, longest_episode
+from drivee2e_jax.scenario.stream import SuiteIndex
 from drivee2e_jax.sim import SimConfig, Simulator
 from drivee2e_jax.types import Waypoints, to_numpy
 
@@ -367,15 +369,7 @@ def stored_rows(run: RunRecord) -> dict[str, dict]:
 
 def _load_run_policy(run: RunRecord):
     """The run's policy, loaded as the bench loaded it (path + keyword arguments)."""
-    path = run.data.get("policy_path")
-    if not path:
-        raise DriveE2EError(f"{run.path}/policies: {run.policy}'s file has no policy_path")
-    if not Path(path).is_file():
-        path = _portable_policy_path(run) or path
-    if not Path(path).is_file():
-        raise DriveE2EError(f"{path}: the policy file of {run.policy!r} recorded in {run.path} is missing "
-                            "(trace from the folder the bench ran in)")
-    return load_policy(path, **(run.data.get("policy_kwargs") or {}))
+    return load_policy(_policy_file(run), **(run.data.get("policy_kwargs") or {}))
 
 
 def _portable_policy_path(run: RunRecord) -> str | None:
@@ -392,6 +386,48 @@ def _portable_policy_path(run: RunRecord) -> str | None:
         return str(resolve_policy_path(stored))
     except DriveE2EError:
         return None
+
+
+def _policy_file(run: RunRecord) -> str:
+    """The run's policy file: ``policy_path``, else the portable recorded one."""
+    path = run.data.get("policy_path")
+    if not path:
+        raise DriveE2EError(f"{run.path}/policies: {run.policy}'s file has no policy_path")
+    if not Path(path).is_file():
+        path = _portable_policy_path(run) or path
+    if not Path(path).is_file():
+        raise DriveE2EError(f"{path}: the policy file of {run.policy!r} recorded in {run.path} is missing "
+                            "(trace from the folder the bench ran in)")
+    return str(path)
+
+
+def check_current(run: RunRecord, packed) -> None:
+    """Refuse (DriveE2EError, one line saying what changed) to re-simulate a
+    stale run: the fingerprints bench compares on resume
+    (``eval.results.check_run_current`` / ``check_policy_current``), with the
+    suite and the policy as they are now. ``packed``: the run's batch
+    (``RunSpec.batch(...).limited()``)."""
+    stored = run.info.get("fingerprint") if isinstance(run.info, dict) else None
+    suite = {}
+    if isinstance(stored, dict) and "suite_files_sha256" in stored:  # a run streamed from a suite folder
+        spec = run.spec
+        suite["suite_files_sha256"] = folder_fingerprint(SuiteIndex.open(spec.suite), spec.split, spec.num_scenarios)
+    else:
+        suite["suite_sha256"] = batch_sha256(packed)
+    check_run_current(run.path, run.info, run_fingerprint(**suite))
+    if "remote" not in (run.data.get("fingerprint") or {}):
+        kwargs = run.data.get("policy_kwargs") or {}
+        check_policy_current(run.path, run.policy, run.data, policy_fingerprint(_policy_file(run), kwargs))
+
+
+def check_results(results_dir: str | Path, policies: Sequence[str] | None = None) -> None:
+    """``check_current`` for each of ``policies`` (default: every policy) of a
+    results folder, before a reader writes anything (``drivee2e view``)."""
+    names = list(policies or run_policies(results_dir))
+    first = read_run(results_dir, names[0])
+    _, packed = _run_packed(first)
+    for name in names:
+        check_current(first if name == first.policy else read_run(results_dir, name), packed)
 
 
 def _run_packed(run: RunRecord):
@@ -490,6 +526,7 @@ def iter_traces(
                             f"{chunk_size}, {sensor_stride}, {lidar_stride}")
     run = read_run(results_dir, policy)
     suite, packed = _run_packed(run)
+    check_current(run, packed)  # the suite and policy are still those benched
     rows = select_rows(packed.meta.scenario_id, scenario_ids)
     if limit is not None:
         rows = rows[: max(int(limit), 0)]

@@ -70,7 +70,8 @@ from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.message import Message
 from mcap.writer import Writer
 
-from drivee2e_jax.files import atomic_write
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import ForeignFiles, atomic_write, check_own_file
 from drivee2e_jax.io import foxglove_schemas as fs
 from drivee2e_jax.io.foxglove_schemas import CompressedImage, FrameTransform, Log, PointCloud, SceneUpdate
 from drivee2e_jax.observe import registry
@@ -81,6 +82,8 @@ from drivee2e_jax.observe.png import png_bytes
 EPISODE_GAP_NS = 1_000_000_000
 #: Profile string of the file (no ROS profile: Foxglove protobuf + one JSON channel).
 PROFILE = ""
+#: The header's library string: how ``check_overwrite`` tells a file drivee2e wrote.
+LIBRARY = "drivee2e-jax"
 
 # --------------------------------------------------------------------------
 # The metrics channel (ours: JSON with a JSON Schema)
@@ -388,6 +391,16 @@ def encode(msg: Message | dict) -> bytes:
     return json.dumps(msg, allow_nan=False, separators=(",", ":")).encode()
 
 
+def check_overwrite(path: str | Path) -> None:
+    """Before ``--force`` rewrites ``path``: DriveE2EError (one line) when it
+    exists but is not an MCAP file drivee2e wrote (its header names
+    ``LIBRARY``): drivee2e never overwrites a user's file."""
+    try:
+        check_own_file(path, LIBRARY.encode(), "MCAP file", head=256)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
+
+
 def write_mcap(traces, path: str | Path) -> Path:
     """Write ``traces`` to ``path`` (atomically: a temp file, then rename). Returns the path."""
     path = Path(path)
@@ -397,7 +410,7 @@ def write_mcap(traces, path: str | Path) -> Path:
 
 def _write(traces, stream) -> None:
     w = Writer(stream)
-    w.start(profile=PROFILE, library="drivee2e-jax")
+    w.start(profile=PROFILE, library=LIBRARY)
     schema_ids: dict[tuple[str, bytes], int] = {}
 
     def channel(topic: str, schema_name: str, timeline_keys: Sequence[str]) -> int:

@@ -132,7 +132,7 @@ def read_info(name: str, root: str | Path | None = None) -> dict:
         raise DriveE2EError(f"{jpath}: unreadable bundled weights' metadata ({e.detail})") from e
     except FileNotFoundError as e:
         raise DriveE2EError(f"{jpath}: bundled weights' metadata missing (export with experiments/zoo/export.py)") from e
-    except (OSError, ValueError) as e:
+    except OSError as e:
         raise DriveE2EError(f"{jpath}: unreadable bundled weights' metadata ({' '.join(str(e).split())})") from e
     if not isinstance(info, dict):
         raise DriveE2EError(f"{jpath}: expected a JSON object, got {type(info).__name__}")

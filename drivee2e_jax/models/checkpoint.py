@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import shutil
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.files import atomic_write_json
+from drivee2e_jax.files import atomic_write_json, loads_json
 from drivee2e_jax.jsonfile import BadJSON, read_json
 from drivee2e_jax.observe.bev import BevConfig
 
@@ -135,7 +134,7 @@ def training_bev(meta: dict) -> BevConfig | None:
         return None
     try:
         raw = (Path(data) / DATA_MANIFEST).read_bytes()
-        manifest = json.loads(raw)
+        manifest = loads_json(raw)
     except (OSError, ValueError):
         return None
     if not isinstance(manifest, dict) or manifest.get("format") != DATA_FORMAT:

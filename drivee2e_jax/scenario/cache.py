@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from drivee2e_jax.files import atomic_write, cache_dir
+from drivee2e_jax.files import atomic_write, cache_dir, read_json
 from drivee2e_jax.records import SCHEMA_VERSION
 from drivee2e_jax.scenario.meta import SuiteMeta
 
@@ -85,7 +85,7 @@ def read_sidecar(npz: Path, side: Path, key: str) -> Sidecar | None:
     """The sidecar at ``side`` if it is for ``key`` and its npz is there with
     the recorded size; None otherwise (a defect is logged: the caller rebuilds)."""
     try:
-        head = json.loads(side.read_text(encoding="utf-8"))
+        head = read_json(side)
         if head.get("format") != CACHE_FORMAT or head.get("key") != key:
             return None
         meta = SuiteMeta.from_json(head["meta"])

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import ForeignFiles, OwnFolder, check_own_folder, read_json
 from drivee2e_jax.jsonfile import BadJSON, parse_json
 from drivee2e_jax.progress import progress as progress_bar
 from drivee2e_jax.records import SCHEMA_VERSION, MapRecord, ScenarioRecord, SuiteRecord
@@ -47,6 +48,11 @@ from drivee2e_jax.scenario.validate import check_cross, check_map, check_scenari
 __all__ = ["read_suite", "write_suite", "validate_suite", "SuiteWriter", "read_head", "read_scenario"]
 
 
+#: What a suite folder holds: ``overwrite`` (``--force``) replaces only a
+#: folder with suite.json and no other files than these.
+SUITE_FOLDER = OwnFolder("suite", "suite.json", ("suite.json", "maps/*.json", "scenarios/*.json"))
+
+
 def write_suite(suite: SuiteRecord, path: str | os.PathLike, *, overwrite: bool = False,
                 progress: bool = False) -> Path:
     """Write ``suite`` as a suite folder at ``path`` and return the path.
@@ -55,7 +61,8 @@ def write_suite(suite: SuiteRecord, path: str | os.PathLike, *, overwrite: bool 
     The folder is built under a temporary name next to ``path`` and moved
     into place with ``os.replace``, so readers never see half a suite. An
     existing non-empty folder is refused unless ``overwrite=True``, and even
-    then only a folder that holds a ``suite.json`` is replaced.
+    then only a folder that holds a ``suite.json`` and nothing but a suite's
+    files (``SUITE_FOLDER``) is replaced.
     """
     problems = validate_records(suite)
     if problems:
@@ -94,6 +101,10 @@ def _check_target(path: Path, overwrite: bool) -> Path:
                                     "(pass --force / overwrite=True to replace a suite folder)")
             if not (path / "suite.json").is_file():
                 raise DriveE2EError(f"{path} is not a suite folder (no suite.json); refusing to replace it")
+            try:  # replacing the folder deletes it whole: only a suite's own files may be there
+                check_own_folder(path, SUITE_FOLDER, redo=True)
+            except ForeignFiles as e:
+                raise DriveE2EError(str(e)) from None
     return path
 
 
@@ -166,7 +177,7 @@ class SuiteWriter:
         state = {"name": name, "version": self.version, "schema_version": SCHEMA_VERSION, "key": jsonify(key)}
         old = None
         try:
-            old = json.loads((self.tmp / "resume.json").read_text(encoding="utf-8"))
+            old = read_json(self.tmp / "resume.json")
         except (OSError, ValueError):
             pass
         self._lock = None
@@ -229,7 +240,7 @@ class SuiteWriter:
     def finish(self, meta: dict | Callable[[list[dict]], dict]) -> Path:
         """Write suite.json (``meta``, or ``meta(stats of every block, in
         block order)``, plus ``pack_sizes``) and move the folder into place."""
-        marks = [json.loads(p.read_text(encoding="utf-8")) for p in sorted((self.tmp / "blocks").glob("*.json"))]
+        marks = [read_json(p) for p in sorted((self.tmp / "blocks").glob("*.json"))]
         if not marks:
             raise DriveE2EError(f"cannot write suite {self.name!r}: no block was written")
         entries = [e for m in marks for e in m["entries"]]

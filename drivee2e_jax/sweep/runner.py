@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -27,13 +26,15 @@ import numpy as np
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.bench import BenchConfig, run_bench
 from drivee2e_jax.eval.report import load_rows
-from drivee2e_jax.eval.results import rows_to_csv
+from drivee2e_jax.eval.results import RESULTS_FOLDER, rows_to_csv
 from drivee2e_jax.eval.summary import summary_of
 from drivee2e_jax.files import (
-    LOCK_NAME,
     FolderLocked,
+    ForeignFiles,
+    OwnFolder,
     atomic_write_json,
     atomic_write_text,
+    check_own_folder,
     lock_folder,
     remove_stray_temp_files,
 )
@@ -44,6 +45,10 @@ from drivee2e_jax.sweep.config import SIM_KEYS_ADDED, SimSection, SweepConfig, o
 
 #: Marker of a complete run inside its folder.
 DONE_FILE = "bench.log"
+#: What a sweep folder holds: ``--force`` redoes only a folder with sweep.json
+#: and no other files than these (``files.check_own_folder``).
+SWEEP_FOLDER = OwnFolder("sweep", "sweep.json", ("sweep.json", "combined.csv", "combined.md", f"runs/*/{DONE_FILE}",
+                                                 *RESULTS_FOLDER.nested("runs/*")))
 #: Run-id parts for settings away from their default: field -> prefix.
 ID_PREFIX = {"dt": "dt", "preset": "", "control_every": "ce", "latency": "lat", "gps_noise_std": "gps",
              "compass_noise_std": "compass", "collisions": "coll_", "agents": "agents_"}
@@ -144,6 +149,7 @@ def run_sweep(cfg: SweepConfig, *, force: bool = False, progress: bool = True,
     out = out_dir(cfg)
     runs = expand(cfg)
     policy_paths(cfg)  # fail before anything is written
+    check_own(out, force)  # before the lock: a folder refused gets no lock file
     try:
         with lock_folder(out, hint="wait for it to finish or use another --out"):  # one sweep per folder
             return _run_locked(out, cfg, runs, force, progress, print_fn)
@@ -186,6 +192,7 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
     """Check ``out`` against ``cfg`` (resume) or reset it (``force``); clean what a killed sweep left."""
     meta = out / "sweep.json"
     record = {"config": cfg.to_json(), "runs": [r.run_id for r in runs]}
+    check_own(out, force)
     if meta.exists() and not force:
         try:
             old = read_json(meta)
@@ -196,13 +203,21 @@ def start(out: Path, cfg: SweepConfig, runs: list[Run], force: bool) -> None:
             diff = _diff(old.get("config") or {}, record["config"])
             raise DriveE2EError(f"{out}: holds a sweep with another config (differs in {diff}); "
                                 "use --force to start over or --out for another folder")
-    elif out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()) and not meta.exists() and not force:
-        raise DriveE2EError(f"{out}: exists and is not a sweep folder; use --force or another --out")
     if force:
         for r in runs:
             (out / "runs" / r.run_id / DONE_FILE).unlink(missing_ok=True)
     remove_stray_temp_files(out)  # a killed sweep's (safe: this sweep holds the folder's lock)
     atomic_write_json(meta, record)
+
+
+def check_own(out: Path, force: bool) -> None:
+    """DriveE2EError (one line naming the files) unless ``out`` is new, empty
+    or a sweep folder, and with ``force`` holds only a sweep's files
+    (``SWEEP_FOLDER``): ``--force`` never deletes what drivee2e did not write."""
+    try:
+        check_own_folder(out, SWEEP_FOLDER, redo=force)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
 
 
 def with_added_sim_keys(record: dict) -> dict:
@@ -234,7 +249,7 @@ def combined_rows(cfg: SweepConfig, runs: list[Run], out: Path) -> list[dict]:
     for run in runs:
         folder = out / "runs" / run.run_id
         _, scn_rows = load_rows(folder / "scenarios.csv")
-        policies = list(json.loads((folder / "summary.json").read_text())["policies"])
+        policies = list(read_json(folder / "summary.json")["policies"])
         for pol in policies:
             mine = [r for r in scn_rows if r["policy"] == pol]
             by_rep: dict = {}

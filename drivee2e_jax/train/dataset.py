@@ -40,7 +40,7 @@ from flax import struct
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import device_batch
-from drivee2e_jax.files import atomic_write, atomic_write_json
+from drivee2e_jax.files import ForeignFiles, OwnFolder, atomic_write, atomic_write_json, check_own_folder
 from drivee2e_jax.jsonfile import BadJSON, read_json
 from drivee2e_jax.models import base
 from drivee2e_jax.models.checkpoint import DATA_FORMAT as FORMAT
@@ -203,6 +203,11 @@ def _np_save_npz(arrays: dict) -> Callable:
     return write
 
 
+#: What a dataset folder holds (no marker: a killed build leaves shards without
+#: manifest.json and a rerun redoes them); any other file refuses the folder.
+DATASET_FOLDER = OwnFolder("dataset", None, (MANIFEST, "shard-*.npz"))
+
+
 def build_dataset(suite, split: str, out: str | Path, cfg: DatasetConfig = DatasetConfig(), *,
                   limit: int | None = None, seed: int = 0,
                   progress: Callable[[int, int], None] | None = None) -> dict:
@@ -210,12 +215,18 @@ def build_dataset(suite, split: str, out: str | Path, cfg: DatasetConfig = Datas
 
     Args:
       suite: a ``scenario.Suite`` (or its name / folder).
-      split: split name.  out: output folder (created; existing shards are overwritten).
+      split: split name.  out: output folder (created; existing shards are
+        overwritten; a folder holding other files than a dataset's,
+        ``DATASET_FOLDER``, is refused: drivee2e never overwrites a user's file).
       cfg: ``DatasetConfig``.  limit: only the first ``limit`` scenarios.
       seed: PRNG seed (observation noise).  progress: ``progress(done, total)`` scenarios.
     """
 
     t0 = time.perf_counter()
+    try:  # before any work: shards and the manifest overwrite only a dataset's own files
+        check_own_folder(out, DATASET_FOLDER, redo=True)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
     suite = load_suite(suite)
     packed = suite.pack(split)
     n = len(packed.meta) if limit is None else min(limit, len(packed.meta))

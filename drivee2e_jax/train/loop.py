@@ -33,7 +33,14 @@ import optax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.files import atomic_write_json, atomic_write_text
+from drivee2e_jax.files import (
+    ForeignFiles,
+    OwnFolder,
+    atomic_write_json,
+    atomic_write_text,
+    check_own_folder,
+    loads_json,
+)
 from drivee2e_jax.jsonfile import read_json
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.registry import get_model
@@ -121,7 +128,21 @@ def data_sharding(batch_size: int):
     return NamedSharding(mesh, PartitionSpec("data")), NamedSharding(mesh, PartitionSpec())
 
 
+#: What a training run folder holds (``train``, ``rl``, ``finetune``): a
+#: non-empty folder without config.json is never written to, and ``--force``
+#: clears only a folder with no other files than these (``files.check_own_folder``).
+TRAINING_FOLDER = OwnFolder("training run", "config.json", ("config.json", "log.jsonl", "checkpoints/*/**"))
+
+
 def check_run_dir(out: Path, cfg_json: dict, resume: bool, force: bool) -> None:
+    """Check ``out`` before a training run writes it: new or empty, or a
+    training run folder (``TRAINING_FOLDER``) that ``resume`` continues with
+    the same config or ``force`` clears (only when it holds nothing else).
+    DriveE2EError (one line) otherwise."""
+    try:
+        check_own_folder(out, TRAINING_FOLDER, redo=force)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
     cfg_file = out / "config.json"
     if not cfg_file.is_file():
         return
@@ -146,7 +167,7 @@ def trim_log(log: Path, step: int) -> None:
     """Drop log lines past ``step`` (written after the checkpoint we resume from)."""
     if not log.is_file():
         return
-    keep = [ln for ln in log.read_text().splitlines() if ln.strip() and json.loads(ln).get("step", 0) <= step]
+    keep = [ln for ln in log.read_text().splitlines() if ln.strip() and loads_json(ln).get("step", 0) <= step]
     atomic_write_text(log, "".join(ln + "\n" for ln in keep))
 
 

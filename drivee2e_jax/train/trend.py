@@ -17,7 +17,6 @@ Output folder::
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -31,7 +30,15 @@ from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.eval.openloop import ShortHorizonError, evaluate_openloop
 from drivee2e_jax.eval.results import rows_to_csv
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, summary_of
-from drivee2e_jax.files import atomic_write, atomic_write_json, atomic_write_text
+from drivee2e_jax.files import (
+    ForeignFiles,
+    OwnFolder,
+    atomic_write,
+    atomic_write_json,
+    atomic_write_text,
+    check_own_folder,
+    read_json,
+)
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.base import as_policy
 from drivee2e_jax.models.checkpoint import training_bev
@@ -46,6 +53,10 @@ COLUMNS = (
     "openloop_collision_rate", "openloop_samples", "success_rate", "driving_score", "route_completion",
     "num_scenarios", "eval_s",
 )
+
+
+#: What a trend folder holds; a folder with any other file is refused.
+TREND_FOLDER = OwnFolder("trend", None, ("trend.csv", "trend.png", "checkpoints/*.json"))
 
 
 def evaluate_checkpoint(policy, params, packed, maps, *, limit: int | None, seed: int) -> dict:
@@ -77,13 +88,18 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
 
     Args:
       run_dir: a ``drivee2e train`` run folder.
-      out: output folder (rows already there are reused).
+      out: output folder (rows already there are reused; a folder with
+        other files than a trend's, ``TREND_FOLDER``, is refused).
       suite: suite name / folder (default: the one the run's dataset was built from).
       split: split evaluated.  limit: only its first ``limit`` scenarios.
       mode: ``models.base.as_policy`` mode ("traj" for the open-loop metrics).
     """
 
     run_dir, out = Path(run_dir), Path(out)
+    try:  # rows, table and plot overwrite only a trend folder's own files
+        check_own_folder(out, TREND_FOLDER, redo=True)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
     ckpts = ckpt.list_checkpoints(run_dir)
     if not ckpts:
         raise DriveE2EError(f"{run_dir}: no checkpoints (expected {run_dir}/checkpoints/<epoch>; run `drivee2e train`)")
@@ -97,7 +113,7 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
     for c in ckpts:
         row_file = out / "checkpoints" / f"{c.name}.json"
         if row_file.is_file():
-            row = json.loads(row_file.read_text())
+            row = read_json(row_file)
             print_fn(f"[epoch {c.name}] reused {row_file}")
         else:
             meta = ckpt.read_meta(c)
@@ -126,11 +142,11 @@ def _run_suite(run_dir: Path) -> str:
     """The suite the run's dataset was recorded from, or a PPO run's suite
     (twin15 if unknown)."""
     try:
-        cfg = json.loads((run_dir / "config.json").read_text())
+        cfg = read_json(run_dir / "config.json")
         if "ppo" in cfg:
             return cfg["ppo"]["suite"]
         data = cfg["data"]
-        return json.loads((Path(data) / "manifest.json").read_text())["suite"]
+        return read_json(Path(data) / "manifest.json")["suite"]
     except (OSError, ValueError, KeyError):
         return "twin15"
 

@@ -37,12 +37,17 @@ from collections.abc import Iterable
 from importlib import resources
 from pathlib import Path
 
-from drivee2e_jax.files import atomic_write_text
+from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import ForeignFiles, OwnFolder, atomic_write_text, check_own_file, check_own_folder
 from drivee2e_jax.viz import payload
 
 TEMPLATE = "player.html"
 #: What the episode and map files call (defined by player.html).
 CALLBACK = "drivee2e_data"
+#: In the head of every page the player writes: how ``--force`` tells its own pages.
+PAGE_SIGNATURE = b'<meta name="generator" content="drivee2e-jax episode player">'
+#: What ``files_dir`` holds (the episode and map scripts ``PlayerWriter`` writes).
+FILES_FOLDER = OwnFolder("episode player files", None, ("episodes/e*.js", "maps/m*.js"))
 
 
 def load_template() -> str:
@@ -69,6 +74,19 @@ def files_dir(out_html: str | Path) -> Path:
     """The folder of per-episode files beside the page: ``<stem>_files``."""
     out = Path(out_html)
     return out.with_name(f"{out.stem}_files")
+
+
+def check_overwrite(out_html: str | Path, *, single_file: bool) -> None:
+    """Before ``--force`` rewrites a page: DriveE2EError (one line) when
+    ``out_html`` exists but is not a page the player wrote (``PAGE_SIGNATURE``)
+    or, unless ``single_file``, ``files_dir`` holds files it did not write
+    (``FILES_FOLDER``): drivee2e never overwrites or deletes a user's files."""
+    try:
+        check_own_file(out_html, PAGE_SIGNATURE, "player page")
+        if not single_file:
+            check_own_folder(files_dir(out_html), FILES_FOLDER, redo=True)
+    except ForeignFiles as e:
+        raise DriveE2EError(str(e)) from None
 
 
 def data_script(kind: str, key: str, record: dict) -> str:

@@ -362,3 +362,20 @@ def test_policy_names_sharing_a_result_file_are_refused(suite_dir, tmp_path, cap
     err = capsys.readouterr().err
     assert rc != 0 and "map to the same result file" in err and "Traceback" not in err
     assert not (out / "policies").exists() or not list((out / "policies").glob("*.json"))
+
+
+def test_force_never_deletes_a_folder_drivee2e_did_not_write(suite_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("DRIVEE2E_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "mine"
+    (out / "plots").mkdir(parents=True)
+    mine = {"report.md": "# my report\n", "summary.json": '{"mine": 1}\n', "plots/fig.png": "png"}
+    for name, text in mine.items():
+        (out / name).write_text(text)
+    for extra in ((), ("--force",)):
+        assert _bench(suite_dir, out, "--limit", "1", *extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(
+            f"drivee2e: error: {out}: not a drivee2e results folder (no run.json; holds plots/fig.png, report.md, "
+            "summary.json)")
+    assert {p.relative_to(out).as_posix(): p.read_text() for p in out.rglob("*") if p.is_file()} == mine
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == ["plots", *sorted(mine)]

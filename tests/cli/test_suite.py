@@ -172,3 +172,11 @@ def test_subprocess_one_line_error_without_traceback(tmp_path):
         "drivee2e: error: unknown suite 'no_such_suite'; expected a built-in suite name (twin15, tiny) "
         "or the path of a suite folder"
     ]
+
+
+def test_a_repeated_key_is_a_problem_naming_file_and_key(capsys, tiny_suite_dir):
+    p = tiny_suite_dir / "scenarios" / "s_val.json"
+    p.write_text(p.read_text().replace('"ego_track_id":', '"ego_track_id":4,"ego_track_id":', 1))
+    code, out, err = run(capsys, "suite", "validate", str(tiny_suite_dir))
+    assert code == 1
+    assert out.strip() == "scenarios/s_val.json: expected each key once per object, got duplicate key 'ego_track_id'"

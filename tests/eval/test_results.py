@@ -8,15 +8,18 @@ import pytest
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.results import (
+    RESULTS_FOLDER,
     RunDir,
+    check_policy_current,
+    check_run_current,
     git_state,
     policy_fingerprint,
     policy_provenance,
     run_differences,
+    run_fingerprint,
     run_provenance,
     stored_path,
 )
-from drivee2e_jax.files import LOCK_NAME
 from drivee2e_jax.policy import resolve_policy_path
 
 INFO = {"suite": "s", "split": "val", "num_scenarios": 1, "dt": 0.1,
@@ -131,7 +134,7 @@ def test_a_second_writer_is_refused_and_what_a_failed_run_created_is_removed(tmp
     (out / "notes.txt").write_text("mine")
     with pytest.raises(DriveE2EError, match="not a drivee2e results folder"):
         RunDir(out, INFO)
-    assert sorted(p.name for p in out.iterdir()) == [LOCK_NAME, "notes.txt"]
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]  # refused before the lock: untouched
 
 
 def test_stray_temp_files_are_removed_under_the_lock(tmp_path):
@@ -165,3 +168,91 @@ def test_a_later_policy_whose_name_shares_a_file_is_refused(tmp_path):
         RunDir(tmp_path / "r", INFO, policies={"x_y": fp})
     with RunDir(tmp_path / "r", INFO, policies={"x/y": fp}) as run:  # the original still resumes
         assert run.done("x/y")
+
+
+def test_force_never_deletes_files_drivee2e_did_not_write(tmp_path):
+    out = tmp_path / "mine"
+    (out / "plots").mkdir(parents=True)
+    for name in ("report.md", "summary.json", "plots/fig.png"):
+        (out / name).write_text("the user's")
+    for force in (False, True):
+        with pytest.raises(DriveE2EError) as e:
+            RunDir(out, INFO, force=force)
+        msg = str(e.value)
+        assert msg.startswith(f"{out}: not a drivee2e results folder (no run.json; holds plots/fig.png, report.md, "
+                              "summary.json)") and "\n" not in msg
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == [
+        "plots", "plots/fig.png", "report.md", "summary.json"]  # untouched, not even a lock file
+    assert all(p.read_text() == "the user's" for p in out.rglob("*") if p.is_file())
+
+    run = tmp_path / "r"  # a results folder the user added a file to
+    with RunDir(run, INFO) as r:
+        _finish(r, "a")
+    (run / "plots").mkdir()
+    (run / "plots" / "fig.png").write_text("the user's")
+    with RunDir(run, INFO) as r:  # resuming deletes nothing: allowed
+        assert r.finished() == ["a"]
+    with pytest.raises(DriveE2EError, match=rf"^{run}: holds files drivee2e did not write \(plots/fig.png\); "
+                                            r"--force redoes only"):
+        RunDir(run, INFO, force=True)
+    assert (run / "plots" / "fig.png").read_text() == "the user's" and (run / "policies" / "a.json").is_file()
+    (run / "plots" / "fig.png").unlink()
+    for name in ("plots/comfort.png", "leaderboard/a.json", "report.md", "scenarios.csv"):  # what drivee2e writes
+        assert RESULTS_FOLDER.owns(name)
+    with RunDir(run, INFO, force=True) as r:  # drivee2e's own files: redone
+        assert r.finished() == []
+
+
+def test_a_module_the_policy_imports_from_its_folder_is_fingerprinted(tmp_path):
+    pkg = tmp_path / "mine"
+    (pkg / "lib").mkdir(parents=True)
+    pol = pkg / "pol.py"
+    pol.write_text("import os\nimport helper\nfrom lib import tune\npolicy = None\n")
+    (pkg / "helper.py").write_text("GAIN = 1\nimport pol  # a cycle\n")
+    (pkg / "lib" / "__init__.py").write_text("")
+    (pkg / "lib" / "tune.py").write_text("def f():\n    from . import deep\n")  # relative, inside a function
+    (pkg / "lib" / "deep.py").write_text("K = 1\n")
+    (pkg / "unused.py").write_text("")
+    fp = policy_fingerprint(pol, {})
+    assert sorted(fp["modules_sha256"]) == ["helper.py", "lib/__init__.py", "lib/deep.py", "lib/tune.py"]
+    assert "modules_sha256" not in policy_fingerprint(_policy(tmp_path), {})  # none: older fingerprints still match
+    with RunDir(tmp_path / "r", INFO, policies={"a": fp}) as run:
+        _finish(run, "a")
+    (pkg / "unused.py").write_text("x = 2\n")
+    with RunDir(tmp_path / "r", INFO, policies={"a": policy_fingerprint(pol, {})}) as run:
+        assert run.done("a")  # a file the policy does not import changes nothing
+    (pkg / "lib" / "deep.py").write_text("K = 2\n")  # two imports away
+    with pytest.raises(DriveE2EError) as e:
+        RunDir(tmp_path / "r", INFO, policies={"a": policy_fingerprint(pol, {})})
+    msg = str(e.value)
+    assert msg.startswith("[a] ") and "(changed: the modules it imports from its folder (lib/deep.py))" in msg
+    assert "--force" in msg and "\n" not in msg
+    with RunDir(tmp_path / "r", INFO, force=True, policies={"a": policy_fingerprint(pol, {})}) as run:
+        assert not run.done("a")  # --force redoes it
+
+
+def test_a_reader_refuses_results_whose_inputs_changed(tmp_path):
+    fp = INFO["fingerprint"]
+    check_run_current(tmp_path, INFO, fp)
+    with pytest.raises(DriveE2EError, match=rf"^{tmp_path}: stale results: the suite's scenarios \(a scenario, map "
+                                            r"or suite.json file edited, or the suite regenerated\) changed since "
+                                            r"`drivee2e bench` wrote them \(differs in fingerprint.suite_sha256\)"):
+        check_run_current(tmp_path, INFO, {**fp, "suite_sha256": "bb"})
+    with pytest.raises(DriveE2EError, match="written by an older drivee2e version"):
+        check_run_current(tmp_path, {"suite": "s"}, fp)
+    assert set(run_fingerprint(suite_sha256="aa")) == {"suite_sha256", "drivee2e_version"}
+    pol = _policy(tmp_path)
+    data = {"fingerprint": policy_fingerprint(pol, {})}
+    check_policy_current(tmp_path, "a", data, policy_fingerprint(pol, {}))
+    pol.write_text("policy = None  # edited\n")
+    with pytest.raises(DriveE2EError, match=r"^\[a\] .*stale results: .*\(changed: the policy file's content\)"):
+        check_policy_current(tmp_path, "a", data, policy_fingerprint(pol, {}))
+
+
+def test_a_repeated_key_in_run_json_is_refused_naming_it(tmp_path):
+    with RunDir(tmp_path / "r", INFO) as run:
+        _finish(run, "a")
+    meta = tmp_path / "r" / "run.json"
+    meta.write_text(meta.read_text().replace('"split": "val",', '"split": "val", "split": "test",'))
+    with pytest.raises(DriveE2EError, match=rf"^{meta}: unreadable \(duplicate key 'split'\); use --force"):
+        RunDir(tmp_path / "r", INFO)

@@ -338,3 +338,28 @@ def test_not_a_suite_folder(tmp_path):
 def test_problem_str():
     assert str(Problem("a.json", "x[1]", "a number", "null")) == "a.json: x[1]: expected a number, got null"
     assert str(Problem("a.json", "", "a file")) == "a.json: expected a file"
+
+
+def test_force_replaces_only_a_folder_of_suite_files(tiny_suite, tmp_path):
+    out = write_suite(tiny_suite, tmp_path / "s")
+    (out / "README.md").write_text("the user's notes")
+    with pytest.raises(DriveE2EError, match=rf"^{out}: holds files drivee2e did not write \(README.md\)"):
+        write_suite(tiny_suite, out, overwrite=True)
+    assert (out / "README.md").read_text() == "the user's notes" and (out / "suite.json").is_file()
+
+
+def test_a_repeated_key_is_a_problem_naming_file_and_key(tiny_suite_dir):
+    p = tiny_suite_dir / "scenarios" / "s_val.json"
+    text = p.read_text()
+    p.write_text(text.replace('"ego_track_id":', '"ego_track_id":4,"ego_track_id":', 1))
+    problems = validate_suite(tiny_suite_dir)
+    assert [str(x) for x in problems] == [
+        "scenarios/s_val.json: expected each key once per object, got duplicate key 'ego_track_id'"]
+    with pytest.raises(DriveE2EError, match=r"scenarios/s_val.json: expected each key once per object, got "
+                                            r"duplicate key 'ego_track_id'"):
+        read_suite(tiny_suite_dir)
+    p.write_text(text)
+    s = tiny_suite_dir / "suite.json"
+    s.write_text(s.read_text().replace('"name":', '"name":"x","name":', 1))
+    assert [str(x) for x in validate_suite(tiny_suite_dir)] == [
+        "suite.json: expected each key once per object, got duplicate key 'name'"]

@@ -287,3 +287,28 @@ def test_an_older_sweep_json_without_collisions_or_agents_still_resumes(tmp_path
     other = _load(tmp_path, BASE + '[sim]\nagents = "idm"\n')
     with pytest.raises(DriveE2EError, match=r"differs in sim\.agents"):
         start(out, other, expand(other), force=False)
+
+
+def test_force_never_deletes_a_folder_drivee2e_did_not_write(tmp_path):
+    """A sweep folder is recognised by sweep.json; --force redoes only its own files."""
+    from drivee2e_jax.sweep.runner import DONE_FILE, check_own
+
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "combined.md").write_text("the user's")
+    for force in (False, True):
+        with pytest.raises(DriveE2EError, match=rf"^{out}: not a drivee2e sweep folder \(no sweep.json; holds "
+                                                r"combined.md\)"):
+            check_own(out, force)
+    (out / "sweep.json").write_text("{}")
+    run = out / "runs" / "tiny-val"
+    (run / "policies").mkdir(parents=True)
+    for name in ("run.json", "policies/stop.json", "summary.json", "plots/comfort.png", DONE_FILE, ".lock"):
+        (run / name).parent.mkdir(parents=True, exist_ok=True)
+        (run / name).write_text("{}")
+    (out / "combined.md").write_text("| drivee2e's |")
+    check_own(out, True)  # every file is a sweep's
+    (run / "notes.txt").write_text("the user's")
+    with pytest.raises(DriveE2EError, match=r"holds files drivee2e did not write \(runs/tiny-val/notes.txt\)"):
+        check_own(out, True)
+    check_own(out, False)  # resuming deletes nothing

@@ -220,3 +220,15 @@ def test_model_policy_without_parameters_draws_a_random_init(small_tcp):
     other = jax.jit(pol.init)(jax.random.PRNGKey(1), obs)
     assert not all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(other),
                                                          jax.tree_util.tree_leaves(params)))
+
+
+def test_build_refuses_a_folder_holding_other_files(tmp_path):
+    from drivee2e_jax.train.dataset import build_dataset
+
+    out = tmp_path / "demos"
+    out.mkdir()
+    (out / "manifest.json").write_text("{}")
+    (out / "notes.md").write_text("the user's")
+    with pytest.raises(DriveE2EError, match=rf"^{out}: holds files drivee2e did not write \(notes.md\)"):
+        build_dataset("tiny", "train", out)
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "notes.md"]

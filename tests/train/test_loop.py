@@ -71,3 +71,27 @@ def test_run_folder_and_resume(tiny_demos, tiny_run, tmp_path, small_config):
         train(small_config(tiny_demos, lr=5e-3), tmp_path / "run", resume=True)
     with pytest.raises(DriveE2EError, match="already exists"):
         train(cfg, tmp_path / "run")
+
+
+def test_a_run_folder_holding_other_files_is_never_written_or_cleared(tmp_path):
+    """train / rl / finetune (``check_run_dir``): a non-empty folder without
+    config.json is never written to; --force clears only a run's own files."""
+    from drivee2e_jax.train.loop import check_run_dir
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "log.jsonl").write_text("the user's notes\n")
+    for force in (False, True):
+        with pytest.raises(DriveE2EError, match=rf"^{out}: not a drivee2e training run folder \(no config.json; "
+                                                r"holds log.jsonl\)"):
+            check_run_dir(out, {}, resume=False, force=force)
+    (out / "config.json").write_text("{}")
+    (out / "checkpoints" / "1" / "state").mkdir(parents=True)
+    (out / "checkpoints" / "1" / "state" / "x").write_text("")
+    (out / "checkpoints" / "mine.txt").write_text("the user's")
+    with pytest.raises(DriveE2EError, match=r"holds files drivee2e did not write \(checkpoints/mine.txt\)"):
+        check_run_dir(out, {}, resume=False, force=True)
+    assert (out / "checkpoints" / "1" / "state" / "x").exists() and (out / "log.jsonl").exists()
+    (out / "checkpoints" / "mine.txt").unlink()
+    check_run_dir(out, {}, resume=False, force=True)
+    assert sorted(p.name for p in out.iterdir()) == []  # a run's own files: cleared

@@ -34,3 +34,17 @@ def test_a_policy_shorter_than_the_open_loop_horizon_gets_empty_open_loop_column
     row = evaluate_checkpoint(policy, None, packed, None, limit=1, seed=0)
     assert row["l2_1s"] is None and row["openloop_samples"] is None
     assert 0.0 <= row["driving_score"] <= 100.0 and row["num_scenarios"] == 1
+
+
+def test_trend_refuses_an_out_folder_holding_other_files(tmp_path):
+    import pytest
+
+    from drivee2e_jax.errors import DriveE2EError
+
+    out = tmp_path / "trend"
+    out.mkdir()
+    (out / "trend.csv").write_text("the user's table")
+    (out / "draft.txt").write_text("the user's")
+    with pytest.raises(DriveE2EError, match=rf"^{out}: holds files drivee2e did not write \(draft.txt\)"):
+        run_trend(tmp_path / "no-run", out)
+    assert (out / "trend.csv").read_text() == "the user's table"

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.files import DuplicateKeyError, loads_json
 from drivee2e_jax.polyline import polyline_length, resample_polyline
 from drivee2e_jax.records import BoundaryRecord, LaneRecord, MapRecord
 from drivee2e_jax.scenario.importers import common
@@ -189,9 +190,13 @@ def _ccw(poly: np.ndarray) -> np.ndarray:
 def load_map(path: Path, map_id: str) -> MapRecord:
     """An AV2 vector-map JSON as a MapRecord (the whole map, uncropped)."""
     try:
-        obj = json.loads(Path(path).read_text(encoding="utf-8"))
+        obj = loads_json(Path(path).read_bytes())
+    except DuplicateKeyError as e:
+        raise DriveE2EError(f"{path}: not valid JSON ({e.msg})") from None
     except json.JSONDecodeError as e:
         raise DriveE2EError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    except UnicodeDecodeError as e:
+        raise DriveE2EError(f"{path}: not UTF-8 text (byte {e.start})") from None
     if not isinstance(obj, dict) or "lane_segments" not in obj:
         raise DriveE2EError(f"{path}: expected an AV2 map object with 'lane_segments'")
     segs = obj["lane_segments"]
