@@ -254,5 +254,5 @@ def test_a_repeated_key_in_run_json_is_refused_naming_it(tmp_path):
         _finish(run, "a")
     meta = tmp_path / "r" / "run.json"
     meta.write_text(meta.read_text().replace('"split": "val",', '"split": "val", "split": "test",'))
-    with pytest.raises(DriveE2EError, match=rf"^{meta}: unreadable \(duplicate key 'split'\); use --force"):
+    with pytest.raises(DriveE2EError, match=rf"^{meta}: expected each key once per object, got duplicate key 'split'; use --force"):
         RunDir(tmp_path / "r", INFO)
