@@ -28,14 +28,18 @@ Agents the log does not show at ``t`` (not yet appeared, gone, a gap) follow
 the log (``s = s_log``, ``v`` = logged speed) and are invalid exactly when the
 log says so.
 
-Leader: the nearest valid object (the ego box or another agent) whose centre
-lies ahead along the agent's heading with a lateral offset within
-``(w_i + w_j) / 2 + lateral_margin``; the gap is the centre distance along
-the heading minus ``(l_i + l_j) / 2``; the leader's speed is its velocity
-projected on the agent's heading (nuPlan
-``nuplan/planning/simulation/observation/idm/idm_agent_manager.py``
-``IDMAgentManager.propagate_agents``). All pairs are evaluated elementwise,
-O(A^2), without (A, A, T) tensors.
+Leader: the nearest valid object (the ego box or another agent) on the
+agent's OWN PATH ahead: its logged path, continued past its end along the
+lane holding that end and the lane's first successor (``leader_paths``,
+once per episode). An object leads when its box, measured across the path,
+reaches within the agent's half width (+ ``lateral_margin``, default 0) of
+the path; the gap is the arc distance to its foot point minus both half
+extents along the path; the leader's speed is its velocity along the path
+(``leaders``). nuPlan does the same with the agent's route along lanes
+buffered by its half width (``nuplan/planning/simulation/observation/idm/
+idm_agent_manager.py`` ``IDMAgentManager.propagate_agents``); until issue 35
+this was a straight band along the agent's heading, which finds cars in
+other lanes on a curve and misses the car ahead on it.
 
 IDM itself follows Waymax ``waymax/agents/waypoint_following_agent.py``
 ``IDMRoutePolicy._get_accel`` (defaults s0 2 m, T 2 s, a 2 m/s^2, b 4 m/s^2,
@@ -97,8 +101,8 @@ class IDMParams:
       accel: maximum acceleration a, m/s^2.
       decel: comfortable deceleration b (positive), m/s^2.
       delta: acceleration exponent.
-      lateral_margin: m added to (w_i + w_j) / 2 for "in my lane": small enough
-        that a neighbour one 3.5 m lane over (2 m wide cars) is not a leader.
+      lateral_margin: m added to the agent's half width when testing whether an
+        object's box reaches its path (``leaders``); 0 as nuPlan.
       v0_scale: desired speed / max logged speed (catch-up headroom).
       v0_min: m/s floor of the desired speed (keeps v / v0 finite).
     """
