@@ -10,17 +10,14 @@ that is not UTF-8 raises UnicodeDecodeError. :func:`parse_json` and
 parts (``where``, ``expected``, ``got``) also serve callers that collect
 problems (``scenario.schema``). An object that repeats a key is refused too
 (``"ego_track_id": 1, "ego_track_id": 4`` would silently keep the last): the
-keys orjson parsed are counted against the text's colons
-(``files._keys_all_unique``), and only on a mismatch does the standard
-library parse again to name the key. Every reader of suite.json, scenario
-and map files, results files and policy / config JSON goes through here
-(``files.loads_json`` / ``read_json`` are the same rule without the guards,
-for drivee2e's own files).
-
-orjson (5x json's speed on a twin15 scenario file) parses first when it is
-installed; what it refuses (NaN / Infinity literals, integers beyond 64
-bits, any error) is decided by the standard library, so the values and the
-refusals are json's.
+parsing is ``files.loads_json``'s (orjson, 5x json's speed on a twin15
+scenario file; the keys it parsed counted against the text's colons; the
+standard library parses again on a mismatch or whatever orjson refuses, so
+values and errors are json's), and this module turns its exceptions into
+:class:`BadJSON`. Every reader of suite.json, scenario and map files,
+results files and policy / config JSON goes through here
+(``files.loads_json`` / ``read_json`` are the same parse without the
+one-line messages, for drivee2e's own files).
 """
 
 from __future__ import annotations
@@ -32,12 +29,7 @@ import sys
 from typing import Any
 
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.files import DuplicateKeyError, _keys_all_unique, _unique_pairs
-
-try:  # a dependency of the package, but a JAX-free serving environment may lack it
-    import orjson
-except ImportError:  # pragma: no cover - exercised only without orjson
-    orjson = None
+from drivee2e_jax.files import DuplicateKeyError, loads_json
 
 __all__ = ["BadJSON", "parse_json", "read_json"]
 
@@ -67,24 +59,10 @@ def parse_json(data: bytes | bytearray | memoryview | str, name: str = "JSON tex
     """The value of JSON ``data``; :class:`BadJSON` (naming ``name``) when it
     is not UTF-8, not JSON, holds a number with more digits than Python
     converts, or nests deeper than the decoder's recursion limit."""
-    if orjson is not None:
-        raw = data.encode("utf-8") if isinstance(data, str) else bytes(data)
-        try:
-            value = orjson.loads(raw)
-        except (orjson.JSONDecodeError, RecursionError):
-            pass  # a strict subset: NaN / Infinity, > 64-bit integers, errors: the standard library decides
-        else:  # orjson keeps the last of repeated keys: count them (files._keys_all_unique)
-            if _keys_all_unique(raw, value):
-                return value
-    if isinstance(data, str):
-        text = data
-    else:
-        try:
-            text = bytes(data).decode("utf-8")
-        except UnicodeDecodeError as e:
-            raise BadJSON(name, "", "UTF-8 text", f"byte {e.start} undecodable ({e.reason})") from None
     try:
-        return json.loads(text, object_pairs_hook=_unique_pairs)
+        return loads_json(data)  # orjson, a repeated key an error; the standard library's values and errors
+    except UnicodeDecodeError as e:
+        raise BadJSON(name, "", "UTF-8 text", f"byte {e.start} undecodable ({e.reason})") from None
     except DuplicateKeyError as e:
         raise BadJSON(name, "", "each key once per object", f"duplicate key {e.key!r}") from None
     except json.JSONDecodeError as e:
@@ -93,7 +71,7 @@ def parse_json(data: bytes | bytearray | memoryview | str, name: str = "JSON tex
         raise BadJSON(name, "", "valid JSON", f"arrays / objects nested too deep to read (deeper than Python's "
                                               f"recursion limit, {sys.getrecursionlimit()})") from None
     except ValueError as e:  # "Exceeds the limit (4300 digits) for integer string conversion"
-        digits = _long_number(text)
+        digits = _long_number(data if isinstance(data, str) else bytes(data).decode("utf-8"))
         if digits is None:
             raise BadJSON(name, "", "valid JSON", str(e).split(";")[0]) from None
         limit, (line, col, n) = sys.get_int_max_str_digits(), digits
