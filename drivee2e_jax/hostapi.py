@@ -161,7 +161,10 @@ class Observation:
 
     @property
     def batch_size(self) -> int:
-        return int(np.shape(self.ego)[0])
+        """B: the leading axis of the first field that holds an array (a
+        field the policy does not observe is None: ``observation_fields``
+        may leave out ``ego``)."""
+        return batch_size(self)
 
 
 #: Fields holding a nested container, per container class.
@@ -233,6 +236,19 @@ def from_fields(obj: Any, cls: type = Observation):
         else:
             kwargs[name] = _as_array(value, what)
     return cls(**kwargs)
+
+
+def batch_size(obs: Any, default: int | None = None) -> int:
+    """B of a batched host container: the leading axis of its first array
+    leaf of rank >= 1, whichever fields it holds; ``default`` when it holds
+    none (an error without one)."""
+    for _, leaf in flatten(obs):
+        if leaf.ndim >= 1:
+            return int(leaf.shape[0])
+    if default is None:
+        raise DriveE2EError("the observation holds no array to take the batch size from "
+                            "(observation_fields selected nothing)")
+    return int(default)
 
 
 def flatten(container: Any) -> list[tuple[tuple[str, ...], np.ndarray]]:

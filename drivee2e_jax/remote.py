@@ -73,6 +73,7 @@ from drivee2e_jax.hostapi import (
     HostPolicy,
     Observation,
     Waypoints,
+    batch_size,
     check_act_result,
     check_action,
     describe,
@@ -303,8 +304,8 @@ def serve(policy: HostPolicy, port: int, host: str = "127.0.0.1", *, source: str
                     obs = unflatten(Observation, arrays)
                 except DriveE2EError as e:
                     raise _WireError(f"bad observation: {e}") from e
-                if obs.batch_size != batch:
-                    raise _WireError(f"observation batch size {obs.batch_size}, the session was reset with {batch}")
+                if batch_size(obs, batch) != batch:
+                    raise _WireError(f"observation batch size {batch_size(obs)}, the session was reset with {batch}")
                 try:
                     result = policy.act(obs, state)
                 except (Exception, SystemExit) as e:
