@@ -1,26 +1,33 @@
-"""Host policies inside the compiled rollout: one host call per control step for the whole batch.
+"""Host policies in the rollout: one host call per control step for the whole batch.
 
 A :class:`~drivee2e_jax.hostapi.HostPolicy` (PyTorch, ONNX, numpy, a remote
-server...) runs outside JAX. :func:`wrap` turns it into a JAX
-``policy.Policy`` whose ``act`` is a ``jax.pure_callback`` with
-``vmap_method="expand_dims"``: under the rollout's ``vmap`` over scenarios the
-callback is called ONCE per control step with the observation of all B
-scenarios (numpy, leading batch axis) and returns the B actions. Everything
-else -- the simulator, the scan over time, chunking, scoring, results,
-resume, ``--open-loop``, ``--repetitions``, ``view`` / ``export-mcap`` -- is
-the path a JAX policy takes. ``docs/performance.md`` compares this with
-compiled simulator segments between host calls (a Python loop per step).
+server...) runs outside JAX. :func:`wrap` turns it into a :class:`HostBridge`,
+which ``rollout.Rollout`` drives as compiled segments around the host call:
+per step a compiled observation of all B scenarios (only the fields the
+policy declares), ``HostBridge._host_act`` on it (numpy, leading batch axis),
+then the compiled step with the returned actions (the next control step's
+observation comes out of the same program). Everything else -- chunking,
+early stop, ``control_every`` / latency, scoring, results, resume,
+``--repetitions``, ``view`` / ``export-mcap`` -- is the path a JAX policy
+takes, with the same keys and steps.
+
+Why segments and not a ``jax.pure_callback`` inside the compiled scan: JAX's
+persistent compilation cache never stores a program that holds a host
+callback, so every process compiled the whole rollout again (16-26 s before a
+host policy's first step); the segments hold no callback and come from the
+cache in the next process. ``HostBridge.act`` is still the callback, for the
+open-loop runner (``eval.openloop``) and for shaping the action
+(``jax.eval_shape``). ``docs/performance.md``, "Host policies", has both
+measured.
 
 The policy's state lives on the host (``HostPolicy.reset(meta)`` /
 ``act(obs, state)``); the JAX-side policy state is the control-step counter.
-Every step of the scan depends on the previous action, so the callbacks run
-in order, exactly once per control step (the rollout only queries the policy
-on control steps: ``lax.cond`` on the static scan index).
+The host calls run in order, exactly once per control step.
 
 Errors inside the host policy (an exception, a wrong action type, shape or
-dtype) are caught in the callback: the failing step returns a full brake for
+dtype) are caught in ``_host_act``: the failing step returns a full brake for
 every scenario, later steps are skipped, and :func:`raise_if_failed` (called
-by the drivers after every compiled chunk) raises one line naming the policy
+by the drivers after every chunk) raises one line naming the policy
 file, the control step and what was expected. NaN / inf actions are not
 errors: the simulator counts and sanitises them as for JAX policies.
 """
@@ -50,7 +57,7 @@ class HostBridge:
       name / action_type / waypoint_dt / required_sensors / sensor_config: the host policy's.
       num_waypoints: K of a waypoint policy (declared, or probed on the first batch).
       observation_fields: the fields the host policy reads (None = all): the
-        others are None in the callback, so XLA never computes them.
+        others are None in what it receives, so XLA never computes them.
       step: control steps called since ``begin``.  failure: the one-line error, or None;
       failure_cause: the exception behind it (the policy's own traceback, which
         ``raise_if_failed`` chains for ``--debug``), or None.

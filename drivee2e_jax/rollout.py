@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from drivee2e_jax.hostbridge import observed
 from drivee2e_jax.lowered_cache import fingerprint, stored_jit
 from drivee2e_jax.metrics import episode as ep
 from drivee2e_jax.observe import sensors
@@ -187,13 +188,28 @@ class Rollout:
         # Each program's lowered module is stored beside the compile cache
         # (lowered_cache): its trace depends on the arguments and on these.
         # Fingerprinted once for the three (the policy may hold large arrays).
-        whole = functools.cache(lambda: fingerprint((type(self), self.sim, self.policy, self.timing, self.chunk, ax)))
+        # A host policy's programs depend only on what crosses the boundary
+        # (its fields and action), not on the host object (a PyTorch module).
+        self.host = getattr(policy, "is_host_policy", False)
+        traced = _host_signature(policy) if self.host else self.policy
+        whole = functools.cache(lambda: fingerprint((type(self), self.sim, traced, self.timing, self.chunk, ax)))
         ident = lambda program: lambda: (program, whole())  # noqa: E731
         self.reset = _with_params(stored_jit(functools.partial(self._reset_batch, axes=ax), ident("reset")),
                                   lambda: (self.assets,))
         self._start = stored_jit(jax.vmap(self._start_one, in_axes=(0, 0, 0, None, None)), ident("start"))
-        self.advance = _with_params(stored_jit(jax.vmap(self._advance_one, in_axes=(0, 0, ax, None)), ident("advance")),
-                                    lambda: (self.assets, self.params))
+        if self.host:
+            # Compiled segments around the host call (the host loop below): no
+            # callback inside a program, so JAX's persistent cache keeps them.
+            self._host_observe = stored_jit(jax.vmap(self._observe_one, in_axes=(0, 0, ax)), ident("host_observe"))
+            self._host_step = stored_jit(jax.vmap(self._given_step_one, in_axes=(0, 0, 0, ax, 0, None)),
+                                         ident("host_step"))
+            self._host_step_observe = stored_jit(
+                jax.vmap(functools.partial(self._given_step_one, observe=True), in_axes=(0, 0, 0, ax, 0, None)),
+                ident("host_step_observe"))
+            self.advance = self._advance_host
+        else:
+            self.advance = _with_params(stored_jit(jax.vmap(self._advance_one, in_axes=(0, 0, ax, None)),
+                                                   ident("advance")), lambda: (self.assets, self.params))
 
     def init(self, batch: Scenario, keys) -> Carry:
         """The carry of every scenario at t = 0: ``start(reset(batch, keys), batch)``."""
@@ -237,28 +253,35 @@ class Rollout:
         return Carry(sim=sim_state, policy_state=pstate, held=neutral, queue=queue, key=key,
                      nonfinite=jnp.zeros((), jnp.int32))
 
-    def _decide(self, scenario: Scenario, carry: Carry, assets, params, k_act):
-        """(the policy's action, its new state) on the current observation."""
+    def _decide(self, scenario: Scenario, carry: Carry, assets, params, k_act, given=None):
+        """(the policy's action, its new state) on the current observation;
+        ``given``: the action a host policy already returned for it (the host
+        loop), with the bridge's state, the control-step count, advanced."""
+        if given is not None:
+            return given, carry.policy_state + 1
         obs = self._sim_observe(scenario, carry.sim, assets)
         return self.policy.act(params, obs, carry.policy_state, k_act)
 
-    def _step_one(self, scenario: Scenario, carry: Carry, assets, params, query=None):
+    def _step_one(self, scenario: Scenario, carry: Carry, assets, params, query=None, given=None):
         """One simulation step. ``query``: () bool whether the policy runs this
         step; None = from the step count. A static True / an unbatched value
-        (the scan index) lets XLA skip the observation on the other steps."""
+        (the scan index) lets XLA skip the observation on the other steps.
+        ``given``: a host policy's action for this step (``_advance_host``)."""
         key, k_act = jax.random.split(carry.key)
         every = self.timing.control_every
         last = carry.held if not self.timing.latency else jax.tree_util.tree_map(lambda q: q[-1], carry.queue)
+        self_decide = self._decide
+        decide = lambda *a: self_decide(*a, given=given)  # noqa: E731
         if every == 1:
-            proposed, pstate = self._decide(scenario, carry, assets, params, k_act)
+            proposed, pstate = decide(scenario, carry, assets, params, k_act)
         elif query is None:
             query = (carry.sim.step % every) == 0
-            proposed, pstate = self._decide(scenario, carry, assets, params, k_act)
+            proposed, pstate = decide(scenario, carry, assets, params, k_act)
             pick = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(query, a, b), new, old)  # noqa: E731
             proposed, pstate = pick(proposed, last), pick(pstate, carry.policy_state)
         else:
             proposed, pstate = jax.lax.cond(
-                query, lambda: self._decide(scenario, carry, assets, params, k_act),
+                query, lambda: decide(scenario, carry, assets, params, k_act),
                 lambda: (last, carry.policy_state))
         if self.timing.latency:
             # Enqueue the newly decided action; apply the oldest one.
@@ -284,6 +307,58 @@ class Rollout:
             return self._step_one(scenario, c, assets, params, (i % every) == 0 if static else None)
 
         return jax.lax.scan(body, carry, jnp.arange(self.chunk), length=self.chunk)
+
+    # a host policy: compiled segments around the host call ----------------
+    def _observe_one(self, scenario: Scenario, carry: Carry, assets):
+        """The observation a host policy reads (``hostbridge.observed``)."""
+        return observed(self._sim_observe(scenario, carry.sim, assets), self.policy.observation_fields)
+
+    def _given_step_one(self, scenario: Scenario, carry: Carry, ctx, assets, action, query, observe=False):
+        """One step applying a host policy's ``action`` on a control step
+        (``query``: () bool, one value for the batch), the held one otherwise;
+        ``observe``: also the observation after the step (the next control
+        step's: one program call per step instead of two).
+        The episode's constants ``ctx`` come in apart from the carry and are
+        not returned (the carry's ``sim.ctx`` is None): a program's outputs
+        are new buffers, and copying ``ctx`` (~25 MB at B = 200) every step
+        cost more than the step."""
+        carry = carry.replace(sim=carry.sim.replace(ctx=ctx))
+        carry, log = self._step_one(scenario, carry, assets, None,
+                                    query if self.timing.control_every > 1 else None, given=action)
+        out = (carry.replace(sim=carry.sim.replace(ctx=None)), log)
+        return (*out, self._observe_one(scenario, carry, assets)) if observe else out
+
+    def _advance_host(self, batch: Scenario, carry: Carry):
+        """``advance`` for a host policy: ``chunk`` steps as a Python loop of
+        the compiled observation, the host ``act`` on the whole batch (numpy,
+        ``HostBridge``) and the compiled step. The same steps, keys and
+        control timing as the scan (the episodes step in lockstep, so the
+        control steps are known on the host); no host callback inside a
+        compiled program, so JAX's persistent cache keeps both programs
+        (``docs/performance.md``, "Host policies"). Returns (carry, StepLog
+        (B, chunk, ...) numpy)."""
+        every = self.timing.control_every
+        t = int(np.asarray(carry.sim.step).reshape(-1)[0])
+        ctx = carry.sim.ctx
+        carry = carry.replace(sim=carry.sim.replace(ctx=None))
+        logs, action, obs = [], None, None
+        for i in range(self.chunk):
+            query = t % every == 0
+            if query:
+                if obs is None:  # the chunk's first control step; later ones come with the step before
+                    obs = self._host_observe(batch, carry.replace(sim=carry.sim.replace(ctx=ctx)), self.assets)
+                action = self.policy._host_act(jax.tree_util.tree_map(np.asarray, obs))
+            elif action is None:  # a chunk that starts between control steps: the held action is kept
+                action = carry.held
+            t += 1
+            if t % every == 0 and i + 1 < self.chunk:
+                carry, log, obs = self._host_step_observe(batch, carry, ctx, self.assets, action, np.asarray(query))
+            else:
+                carry, log = self._host_step(batch, carry, ctx, self.assets, action, np.asarray(query))
+            logs.append(log)
+        carry = carry.replace(sim=carry.sim.replace(ctx=ctx))
+        # np.asarray leaf by leaf: ~5x faster than jax.device_get on the list.
+        return carry, jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs], axis=1), *logs)
 
     # host loop --------------------------------------------------------------
     def run(self, batch: Scenario, key, *, max_steps: int | None = None, progress: Callable[[int], None] | None = None):
@@ -346,6 +421,13 @@ def balanced_chunk(total_steps: int, max_chunk: int, multiple: int = 1) -> int:
     n = -(-total_steps // max_chunk)
     size = -(-total_steps // n)
     return -(-size // multiple) * multiple
+
+
+def _host_signature(policy) -> tuple:
+    """What a host policy's compiled segments depend on: the fields it reads
+    and its action's type and length."""
+    return ("host", policy.observation_fields, policy.action_type, policy.num_waypoints,
+            tuple(policy.required_sensors), policy.sensor_config)
 
 
 def _with_params(fn, get_extra):

@@ -236,7 +236,7 @@ class RouteOnly(HostPolicy):
         return None
 
     def act(self, obs, state):
-        b = obs.route.shape[0]
+        b = obs.batch_size  # from the fields it observes (no ego)
         with open(self.log, "a") as f:
             f.write(f"{obs.ego is None} {b}\\n")
         z = np.zeros(b, np.float32)
@@ -262,6 +262,15 @@ def test_a_host_policy_that_does_not_observe_ego_runs_in_check_policy_and_bench(
     assert len(result.rows) == 2
     seen = log.read_text().split("\n")[:-1]
     assert seen and all(line == "True 2" for line in seen)
+    # served: the server takes the batch size from the fields that arrive
+    log.unlink()
+    with serve_policy(f"{path}:log={log}", tmp_path) as server:
+        remote = evaluate(load_policy(server.remote), load_suite("tiny"), "train", limit=2)
+    skip = {"policy", "eval_time_s"}
+    assert [{k: v for k, v in r.items() if k not in skip} for r in remote.rows] == \
+        [{k: v for k, v in r.items() if k not in skip} for r in result.rows]
+    seen = log.read_text().split("\n")[:-1]
+    assert seen and all(line == "True 2" for line in seen)
 
 
 def test_a_host_policy_calling_sys_exit_is_one_line_naming_its_file_and_line(tmp_path):
@@ -283,3 +292,44 @@ def test_a_host_policy_calling_sys_exit_is_one_line_naming_its_file_and_line(tmp
     action = bridge._host_act(obs)  # no SystemExit escapes: the rollout brakes, the failure is kept
     assert np.shape(action.brake) == (2,)
     assert bridge.failure == f"{path}, step 0: act called sys.exit(3) at {path}:14"
+
+
+_TWO_RUNS = """
+import json, sys
+from drivee2e_jax import compile_cache
+compile_cache.enable()
+import jax
+compiled = [0.0]
+def on_duration(event, seconds, **kwargs):
+    if event == "/jax/core/compile/backend_compile_duration":
+        compiled[0] += seconds
+jax.monitoring.register_event_duration_secs_listener(on_duration)
+from drivee2e_jax.eval.closedloop import evaluate
+from drivee2e_jax.policy import load_policy
+from drivee2e_jax.scenario import load_suite
+evaluate(load_policy(sys.argv[1]), load_suite("twin15"), "val", limit=2)
+print(json.dumps(compiled[0]))
+"""
+
+
+def test_a_second_process_takes_a_host_policy_rollout_from_the_compile_cache(tmp_path):
+    """Issue 39 item 9: JAX never stores a program holding a host callback, so
+    the bridge runs compiled segments around the host call instead; a second
+    process finds every large program in the persistent cache (and the
+    lowered store) and compiles almost nothing."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "DRIVEE2E_JAX_CACHE": str(tmp_path / "jax")}
+    policy = str(REPO / "docs" / "examples" / "numpy_constant_velocity.py")
+    seconds = []
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", _TWO_RUNS, policy], env=env, cwd=REPO, capture_output=True,
+                             text=True, timeout=600)
+        assert out.returncode == 0, out.stderr[-2000:]
+        seconds.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    first, second = seconds
+    assert first > 2.0, seconds  # the rollout was compiled (XLA seconds of the first process)
+    assert second < 0.25 * first, seconds  # before the segments: ~the first's (the scan with its callback)

@@ -91,3 +91,59 @@ def test_mlp_mode_conforms_to_the_policy_interface():
     report = check_policy_file(f"{EXAMPLE}:mode=mlp", batch=2, steps=2)
     assert report.ok, [str(p) for p in report]
     assert report.summary.startswith("torch_mlp: host policy, Waypoints xy (B, 6, 2) float32, waypoint_dt 0.5 s")
+
+
+def _docs_snippet() -> str:
+    """The ``# my_torch_policy.py`` block of docs/host_policies.md, as written."""
+    text = (REPO / "docs" / "host_policies.md").read_text()
+    start = text.index("```python\n# my_torch_policy.py") + len("```python\n")
+    return text[start:text.index("```", start)]
+
+
+ROUTE_HEAD = """
+import sys, torch
+class RouteHead(torch.nn.Module):  # ego-frame route (B, P, 2) -> the points 2, 4, 6, 8 m ahead
+    def forward(self, route):
+        return route[:, 2:10:2, :]
+torch.jit.script(RouteHead()).save(sys.argv[1])
+"""
+
+
+def test_the_policy_written_from_the_docs_runs_everywhere_and_a_broken_one_is_one_line(tmp_path):
+    """Issue 39: the PyTorch snippet of docs/host_policies.md (it observes only
+    ``("route",)``) passes check-policy, benches in process and served with
+    the same rows; a bug in its ``act`` is one line naming its file:line in
+    process and from the server."""
+    import subprocess
+    import sys
+
+    from drivee2e_jax.errors import DriveE2EError
+    from drivee2e_jax.testing import check_policy_file
+
+    snippet = _docs_snippet()
+    assert 'observation_fields = ("route",)' in snippet
+    good, ckpt = tmp_path / "my_torch_policy.py", tmp_path / "model.pt"
+    good.write_text(snippet)
+    (tmp_path / "make_checkpoint.py").write_text(ROUTE_HEAD)  # TorchScript reads the module's source file
+    subprocess.run([sys.executable, str(tmp_path / "make_checkpoint.py"), str(ckpt)], check=True, timeout=120)
+    spec = f"{good}:checkpoint={ckpt}"
+    report = check_policy_file(spec, batch=2, steps=2)
+    assert report.ok, [str(p) for p in report]
+    local = evaluate(load_policy(spec), load_suite("twin15"), "val", limit=2)
+    with serve_policy(spec, tmp_path) as server:
+        remote = evaluate(load_policy(server.remote), load_suite("twin15"), "val", limit=2)
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in SKIP} for r in rows]  # noqa: E731
+    assert strip(remote.rows) == strip(local.rows) and local.rows[0]["route_completion"] > 50.0
+
+    line = "            xy = self.net(x)                                        # (B, 4, 2)\n"
+    assert line in snippet
+    broken = tmp_path / "broken_policy.py"
+    broken.write_text(snippet.replace(line, "            xy = self.net(x)[:, :, 5]\n"))
+    lineno = snippet[:snippet.index(line)].count("\n") + 1
+    bad = f"{broken}:checkpoint={ckpt}"
+    with pytest.raises(DriveE2EError) as in_process:
+        evaluate(load_policy(bad), load_suite("twin15"), "val", limit=2)
+    with serve_policy(bad, tmp_path) as server, pytest.raises(DriveE2EError) as served:
+        evaluate(load_policy(server.remote), load_suite("twin15"), "val", limit=2)
+    for err in (in_process.value, served.value):
+        assert "\n" not in str(err) and f"{broken}:{lineno}" in str(err) and "IndexError" in str(err), str(err)

@@ -36,6 +36,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from drivee2e_jax import compile_cache
 from drivee2e_jax.envs.functional import DriveEnv, EnvParams, EnvState, RewardConfig, make_params
 from drivee2e_jax.sim import SimConfig
 from drivee2e_jax.types import Category, Command, SignalState
@@ -198,6 +199,10 @@ class DriveE2EVectorEnv(gymnasium.vector.VectorEnv):
                  num_waypoints: int = 4, limit: int | None = None, params: EnvParams | None = None):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        # JAX's persistent compilation cache, as every drivee2e command uses it:
+        # a new process takes the env's compiled step from disk instead of
+        # compiling it again (DRIVEE2E_JAX_CACHE=off turns it off).
+        compile_cache.enable()
         self.params = params if params is not None else make_params(suite, split, config=config, reward=reward,
                                                                      limit=limit)
         self.num_envs = int(num_envs)

@@ -599,8 +599,8 @@ class TracingRollout(Rollout):
     ``ctx``): the trace renders its frames from those states with
     ``Simulator.observe``, the function the policy's observation comes from."""
 
-    def _step_one(self, scenario, carry, assets, params, query=None):
-        carry, log = super()._step_one(scenario, carry, assets, params, query)
+    def _step_one(self, scenario, carry, assets, params, query=None, given=None):
+        carry, log = super()._step_one(scenario, carry, assets, params, query, given)
         return carry, (log, carry.held, carry.sim.replace(ctx=None))
 
 

@@ -1,8 +1,9 @@
 """What a host policy costs: the state-only closed loop with the same policy in
-JAX, as a numpy host policy through ``jax.pure_callback`` inside the compiled
-scan (``hostbridge``, what ``drivee2e bench`` uses), and as compiled simulator
-segments between host calls (a Python loop: jitted observe -> host act ->
-jitted step, one device->host->device exchange per step).
+JAX, as a numpy host policy through the bridge (``hostbridge`` + ``Rollout``:
+compiled segments around one host call per step, what ``drivee2e bench``
+uses), and as the former ``jax.pure_callback`` inside the compiled scan (kept
+here for the comparison: JAX's persistent cache never stores a program with a
+host callback, so every process compiled it again).
 
 Under ``jit`` a JAX policy's observation is computed only as far as the policy
 reads it (constant_velocity reads ``obs.ego``; lanes and agents are never
@@ -11,13 +12,13 @@ projected). A host policy gets what it declares in ``observation_fields``
 field, which costs the simulator the full vector observation. To separate the
 two costs, ``jax_full`` is the JAX policy made to read every field (a zero
 times the sum of all leaves), and the host variants run both ways
-(``callback`` = declared fields, ``callback_full`` / ``segments_full`` = every field).
+(``bridge`` / ``callback`` = declared fields, ``bridge_full`` / ``callback_full`` = every field).
 
     python experiments/perf/host_policy.py [--batch 200] [--steps 200] [--rounds 2] [--json]
 
 The policy is constant_velocity (``drivee2e_jax/zoo/constant_velocity.py``) and its
 numpy twin (``docs/examples/numpy_constant_velocity.py``): the same
-waypoints, so the three variants simulate the same episodes. Each variant is
+waypoints, so the variants simulate the same episodes. Each variant is
 compiled and warmed up first, then timed over ``--steps`` steps; the variants
 are interleaved ``--rounds`` times and the best round of each is reported
 (shared machine), with the overhead of each host variant relative to the JAX
@@ -81,47 +82,37 @@ def _batch(n: int):
     return jax.tree_util.tree_map(jnp.asarray, packed.scenario), packed.meta
 
 
-def scanned(policy, batch, meta, steps: int, chunk: int = 50) -> float:
-    """Seconds for ``steps`` steps of the compiled rollout (JAX or bridged host policy)."""
+def scanned(policy, batch, meta, steps: int, chunk: int = 50, bridge=None) -> float:
+    """Seconds for ``steps`` steps of the rollout (a JAX policy, a bridged host
+    policy, or ``InScan``: the bridge's callback inside the scan; ``bridge``:
+    the bridge to start per batch, default ``policy``)."""
+    bridge = policy if bridge is None else bridge
     sim = Simulator(SimConfig())
     ro = Rollout(sim, policy, None, chunk=chunk)
     keys = jax.random.split(jax.random.PRNGKey(0), int(batch.ego_index.shape[0]))
-    hostbridge.begin(policy, meta, batch)
+    hostbridge.begin(bridge, meta, batch)
     carry = ro.init(batch, keys)
     carry, _ = ro.advance(batch, carry)  # compile + warm up
     jax.block_until_ready(carry)
-    hostbridge.begin(policy, meta, batch)
+    hostbridge.begin(bridge, meta, batch)
     carry = ro.init(batch, keys)
     t0 = time.perf_counter()
     for _ in range(steps // chunk):
         carry, log = ro.advance(batch, carry)
     jax.block_until_ready((carry, log))
-    hostbridge.raise_if_failed(policy)
+    hostbridge.raise_if_failed(bridge)
     return time.perf_counter() - t0
 
 
-def segments(host: hostapi.HostPolicy, batch, meta, steps: int) -> float:
-    """Seconds for ``steps`` steps as jitted segments with a Python host call between them."""
-    sim = Simulator(SimConfig())
-    b = int(batch.ego_index.shape[0])
-    keys = jax.random.split(jax.random.PRNGKey(0), b)
-    reset = jax.jit(jax.vmap(lambda k, s: sim.reset(k, s)[0]))
-    observe = jax.jit(jax.vmap(lambda s, st: sim.observe(s, st)))
-    step = jax.jit(jax.vmap(lambda s, st, a: sim.step(s, st, a, observe=False)[0]))
+class InScan:
+    """A bridged host policy seen as a plain JAX policy: its ``act`` (a
+    ``jax.pure_callback``) runs inside the compiled scan, the path the bridge
+    took before the compiled segments."""
 
-    def run(n: int):
-        state = reset(keys, batch)
-        pstate = host.reset(meta.rows())
-        for _ in range(n):
-            obs = jax.device_get(observe(batch, state))  # device -> host
-            action, pstate = host.act(hostapi.from_fields(obs), pstate)
-            state = step(batch, state, Waypoints(xy=jnp.asarray(action.xy)))  # host -> device
-        return jax.block_until_ready(state)
-
-    run(2)  # compile + warm up
-    t0 = time.perf_counter()
-    run(steps)
-    return time.perf_counter() - t0
+    def __init__(self, bridge):
+        self.bridge = bridge
+        self.name, self.action_type, self.waypoint_dt = bridge.name, bridge.action_type, bridge.waypoint_dt
+        self.init, self.initial_state, self.act = bridge.init, bridge.initial_state, bridge.act
 
 
 def main(argv=None) -> int:
@@ -136,12 +127,14 @@ def main(argv=None) -> int:
     jax_pol = load_policy(ROOT / "drivee2e_jax" / "zoo" / "constant_velocity.py")
     host = load_policy(ROOT / "docs" / "examples" / "numpy_constant_velocity.py")
     host_full = AllFields(host)
+    bridge, full_bridge = hostbridge.wrap(host), hostbridge.wrap(host_full)
     variants = {
         "jax": lambda: scanned(jax_pol, batch, meta, steps),
         "jax_full": lambda: scanned(ReadsEverything(jax_pol), batch, meta, steps),
-        "callback": lambda: scanned(hostbridge.wrap(host), batch, meta, steps),
-        "callback_full": lambda: scanned(hostbridge.wrap(host_full), batch, meta, steps),
-        "segments_full": lambda: segments(host_full, batch, meta, steps),
+        "bridge": lambda: scanned(bridge, batch, meta, steps),
+        "callback": lambda: scanned(InScan(bridge), batch, meta, steps, bridge=bridge),
+        "bridge_full": lambda: scanned(full_bridge, batch, meta, steps),
+        "callback_full": lambda: scanned(InScan(full_bridge), batch, meta, steps, bridge=full_bridge),
     }
     best = dict.fromkeys(variants, np.inf)
     load = [os.getloadavg()[0]]
@@ -154,9 +147,10 @@ def main(argv=None) -> int:
         **{f"{k}_s": round(v, 3) for k, v in best.items()},
         **{f"{k}_scenario_steps_per_s": round(args.batch * steps / v) for k, v in best.items()},
         # the host round trip, each against the JAX policy computing the same observation:
+        "bridge_vs_jax_pct": round(100 * (best["bridge"] / best["jax"] - 1), 1),
         "callback_vs_jax_pct": round(100 * (best["callback"] / best["jax"] - 1), 1),
+        "bridge_full_vs_jax_full_pct": round(100 * (best["bridge_full"] / best["jax_full"] - 1), 1),
         "callback_full_vs_jax_full_pct": round(100 * (best["callback_full"] / best["jax_full"] - 1), 1),
-        "segments_full_vs_jax_full_pct": round(100 * (best["segments_full"] / best["jax_full"] - 1), 1),
         # what the full observation costs the simulator:
         "jax_full_vs_jax_pct": round(100 * (best["jax_full"] / best["jax"] - 1), 1),
         "load_1min": [round(x, 2) for x in load],

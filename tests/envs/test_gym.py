@@ -122,3 +122,21 @@ def test_vector_env_meets_gymnasium_conventions():
     assert (terminated | truncated).all() and info["_episode"].all() and "scores" in info
     np.testing.assert_array_equal(info["episode"]["l"], [EPISODE_STEPS] * 2)
     stats.close()
+
+
+def test_a_new_process_points_the_env_at_the_persistent_compile_cache(tmp_path):
+    """Issue 39 item 9: the env's compiled step comes from JAX's persistent
+    cache in a new process (measured in docs/performance.md), as for every
+    drivee2e command; DRIVEE2E_JAX_CACHE=off keeps it off."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import jax\nfrom drivee2e_jax.envs.gym import DriveE2EVectorEnv\n"
+            f"DriveE2EVectorEnv({TINY!r}, 'train', num_envs=2)\nprint(jax.config.jax_compilation_cache_dir)\n")
+    for setting, expected in ((str(tmp_path / "jax"), str(tmp_path / "jax")), ("off", "None")):
+        env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+        env["DRIVEE2E_JAX_CACHE"] = setting
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert out.stdout.strip().splitlines()[-1] == expected, (setting, out.stdout)
