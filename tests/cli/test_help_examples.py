@@ -17,7 +17,9 @@ build``, ``trend`` and ``view``; a batch of 16 for ``train`` (the 2-scenario
 demonstrations hold under one default batch); 2 steps of horizon 5 on a pool
 of 2 for ``finetune``; ``--no-sensors`` for ``view`` (rendering the sensor
 panes took ~20 s of a page's ~45 s; tests/viz/test_player_observation.py
-checks them).
+checks them) and ``--policy stop`` (each policy of the page is re-simulated:
+the bench's three took 58 s of the first page example and 30 s of each later
+one; tests/viz/test_player_html.py covers pages of several policies).
 
 The working folder holds what the examples assume from a checkout
 (``experiments/``, ``docs/examples/``) and the
@@ -57,7 +59,7 @@ FASTER = {
     ("bench",): ["--limit", "5"],  # the view / export-mcap examples name val scenarios among the first 5
     ("dataset", "build"): ["--limit", "2"],
     ("trend",): ["--limit", "2"],
-    ("view",): ["--limit", "2", "--no-sensors"],  # the BEV / LiDAR panes: ~20 s a page (see the docstring)
+    ("view",): ["--limit", "2", "--no-sensors", "--policy", "stop"],  # see the docstring
     ("train",): ["--batch-size", "16"],
     ("finetune",): ["--steps", "2", "--horizon", "5", "--batch", "2", "--ckpt-every", "1"],
     ("rl",): ["--envs", "4", "--rollout-steps", "4", "--minibatches", "2", "--epochs", "1", "--env-steps", "32",
