@@ -10,7 +10,8 @@ argument), so the open-loop program compiles once.
 
 Output folder::
 
-    DIR/checkpoints/<epoch>.json   one row per checkpoint (resumable: rows present are reused)
+    DIR/checkpoints/<epoch>.json   one row per checkpoint, with the inputs it was made from (resumable:
+                                   a row is reused only when its inputs are this run's)
     DIR/trend.csv                  the rows, by epoch
     DIR/trend.png                  open-loop (left) and closed-loop (right) against the epoch
 """
@@ -28,7 +29,8 @@ from matplotlib.figure import Figure
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.eval.openloop import ShortHorizonError, evaluate_openloop
-from drivee2e_jax.eval.results import rows_to_csv
+from drivee2e_jax.eval.results import fingerprint_differences, package_version, rows_to_csv
+from drivee2e_jax.eval.runspec import batch_sha256
 from drivee2e_jax.eval.summary import OPEN_LOOP_COLUMNS, summary_of
 from drivee2e_jax.files import (
     ForeignFiles,
@@ -38,6 +40,7 @@ from drivee2e_jax.files import (
     atomic_write_text,
     check_own_folder,
     read_json,
+    sha256_tree,
 )
 from drivee2e_jax.models import checkpoint as ckpt
 from drivee2e_jax.models.base import as_policy
@@ -109,19 +112,27 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
     maps = suite.maps if getattr(model, "required_sensors", ()) else None
     bev = training_bev(ckpt.read_meta(ckpts[-1]))
     policy = as_policy(model, None, mode, sensor_config=None if bev is None else SensorConfig(bev=bev))
+    # What a row depends on: reused only when all of it is unchanged.
+    common = {"suite_sha256": batch_sha256(packed if limit is None else packed.select(np.arange(min(limit, len(packed))))),
+              "split": split, "limit": limit, "seed": seed, "mode": mode, "drivee2e_version": package_version()}
     rows = []
     for c in ckpts:
         row_file = out / "checkpoints" / f"{c.name}.json"
-        if row_file.is_file():
-            row = read_json(row_file)
+        inputs = {**common, "checkpoint_sha256": sha256_tree(c)}
+        row = read_json(row_file) if row_file.is_file() else None
+        stale = None if row is None else _stale(row, inputs)
+        if row is not None and not stale:
             print_fn(f"[epoch {c.name}] reused {row_file}")
         else:
+            if stale:
+                print_fn(f"[epoch {c.name}] evaluated again: {row_file} was made from other inputs ({stale})")
             meta = ckpt.read_meta(c)
             t0 = time.perf_counter()
             got = evaluate_checkpoint(policy, ckpt.load_params(c), packed, maps, limit=limit, seed=seed)
             row = {"checkpoint": str(c), "epoch": int(meta["epoch"]), "step": int(meta.get("step", 0)),
                    "env_steps": meta.get("env_steps"),  # PPO runs: environment steps trained on
-                   "train_loss": meta.get("train_loss"), **got, "eval_s": round(time.perf_counter() - t0, 1)}
+                   "train_loss": meta.get("train_loss"), **got, "eval_s": round(time.perf_counter() - t0, 1),
+                   "inputs": inputs}
             atomic_write_json(row_file, row)
             print_fn(f"[epoch {row['epoch']}] L2 1s {_fmt(row['l2_1s'])} m, 2s {_fmt(row['l2_2s'])} m, "
                      f"col {_fmt(row['openloop_collision_rate'], 4)}; SR {row['success_rate']:.1f}, "
@@ -131,6 +142,16 @@ def run_trend(run_dir: str | Path, out: str | Path, *, suite: str | None = None,
     atomic_write_text(out / "trend.csv", rows_to_csv(rows, COLUMNS))
     plot_trend(rows, out / "trend.png", title=f"{model.name}: {run_dir.name}, {split}")
     return rows
+
+
+def _stale(row, inputs: dict) -> str:
+    """Why a stored checkpoint row cannot be reused ('' when it can): the
+    inputs it records (suite batch, split, limit, seed, mode, checkpoint
+    files, package version) differ from this run's, or it records none (a
+    row from before they were recorded, or not a row)."""
+    if not isinstance(row, dict) or not isinstance(row.get("inputs"), dict):
+        return "it records no inputs"
+    return ", ".join(fingerprint_differences(row["inputs"], inputs)) + (" changed" if row["inputs"] != inputs else "")
 
 
 def _fmt(v, digits: int = 3) -> str:

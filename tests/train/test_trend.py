@@ -48,3 +48,43 @@ def test_trend_refuses_an_out_folder_holding_other_files(tmp_path):
     with pytest.raises(DriveE2EError, match=rf"^{out}: holds files drivee2e did not write \(draft.txt\)"):
         run_trend(tmp_path / "no-run", out)
     assert (out / "trend.csv").read_text() == "the user's table"
+
+
+def test_a_rerun_with_other_inputs_evaluates_again_instead_of_reusing(tiny_run, tmp_path):
+    """Issue 39 (results never lie): a stored checkpoint row is reused only
+    for the same inputs; another --limit, a retrained checkpoint or a row
+    without recorded inputs is evaluated again and says why."""
+    import json
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    out = tmp_path / "trend"
+    msgs = []
+    first = run_trend(run, out, suite=str(TINY), split="train", limit=1, print_fn=msgs.append)
+    assert all(r["num_scenarios"] == 1 for r in first)
+    msgs.clear()
+    wider = run_trend(run, out, suite=str(TINY), split="train", limit=2, print_fn=msgs.append)
+    assert all(r["num_scenarios"] == 2 for r in wider), wider  # before: the 1-scenario rows came back
+    assert sum("evaluated again" in m and "limit" in m and "suite_sha256" in m for m in msgs) == 2, msgs
+    # a checkpoint retrained in place: its files changed
+    params = next(p for p in sorted((run / "checkpoints" / "2").rglob("*")) if p.is_file() and p.suffix != ".json")
+    params.write_bytes(params.read_bytes() + b" ")
+    msgs.clear()
+    try:
+        run_trend(run, out, suite=str(TINY), split="train", limit=2, print_fn=msgs.append)
+    except Exception:  # noqa: BLE001 - the edited file may no longer load; what matters is it was not reused
+        pass
+    assert any(m.startswith("[epoch 2] evaluated again") and "checkpoint_sha256" in m for m in msgs), msgs
+    assert any(m.startswith("[epoch 1] reused") for m in msgs), msgs
+    # a row from before inputs were recorded
+    row_file = out / "checkpoints" / "1.json"
+    row = json.loads(row_file.read_text())
+    del row["inputs"]
+    row_file.write_text(json.dumps(row))
+    msgs.clear()
+    try:
+        run_trend(run, out, suite=str(TINY), split="train", limit=2, print_fn=msgs.append)
+    except Exception:  # noqa: BLE001 - epoch 2's edited checkpoint
+        pass
+    assert any(m.startswith("[epoch 1] evaluated again") and "records no inputs" in m for m in msgs), msgs
