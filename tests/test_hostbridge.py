@@ -52,10 +52,12 @@ class NumpyLogReplay(HostPolicy):
                 return Controls(throttle=c.throttle[:, None], brake=c.brake, steer=c.steer), state
             if self.mode == "nostate":
                 return Controls(throttle=c.throttle, brake=c.brake, steer=c.steer)
-        throttle = np.array(c.throttle, np.float32)
+        ok = np.asarray(obs.privileged.log_valid)  # past the end of the log: hold still, as rollout.LogReplay
+        throttle = np.where(ok, c.throttle, 0.0).astype(np.float32)
         throttle[list(self.nan_rows)] = np.nan
         state = {**state, "step": state["step"] + 1}
-        return Controls(throttle=throttle, brake=np.asarray(c.brake), steer=np.asarray(c.steer)), state
+        brake, steer = np.where(ok, c.brake, 1.0).astype(np.float32), np.where(ok, c.steer, 0.0).astype(np.float32)
+        return Controls(throttle=throttle, brake=brake, steer=steer), state
 
 def make_policy(**kwargs):
     return NumpyLogReplay(**kwargs)
@@ -107,6 +109,17 @@ def test_numpy_constant_velocity_host_policy_equals_the_jax_one(twin15):
     jax_cv = evaluate(load_policy(resolve_policy_path("constant_velocity")), twin15, "val", limit=LIMIT)
     # np.sinc and jnp.sinc may differ in the last float32 bit; nothing visible downstream.
     _same_rows(evaluate(example, twin15, "val", limit=LIMIT), jax_cv, rel=1e-5)
+
+
+def test_a_host_policy_under_control_every_and_latency_equals_the_jax_one(twin15, np_log_replay):
+    """The bridge's host loop knows the control steps on the host (the episodes
+    step in lockstep) and holds / delays the action as the scan does for a JAX
+    policy: the same rows with a query every 3 steps and 2 steps of latency."""
+    from drivee2e_jax.rollout import ControlTiming
+
+    timing = ControlTiming(control_every=3, latency=2)
+    jax_rows = evaluate(load_policy(resolve_policy_path("log_replay")), twin15, "val", limit=4, timing=timing)
+    _same_rows(evaluate(load_policy(np_log_replay), twin15, "val", limit=4, timing=timing), jax_rows)
 
 
 def test_undeclared_number_of_waypoints_is_probed(twin15, tmp_path):
