@@ -98,7 +98,7 @@ class HostBridge:
 
     def _host_act(self, obs) -> Controls | Waypoints:
         """The callback: (B, ...) numpy observation -> (B, ...) numpy action."""
-        b = batch_size(obs, self.batch)
+        b = hostapi.batch_size(obs, self.batch)
         if self.failure is None:
             where = f"{self.source}, step {self.step}"
             try:
@@ -124,7 +124,7 @@ class HostBridge:
         except (Exception, SystemExit) as e:  # a user's policy: one line, not a traceback
             raise DriveE2EError(f"{where}: act {raised_text(e, self.source)}") from e
         result = hostapi.check_act_result(out, where)
-        action = hostapi.check_action(result[0], "waypoints", batch_size(obs_batch, self.batch), where)
+        action = hostapi.check_action(result[0], "waypoints", hostapi.batch_size(obs_batch, self.batch), where)
         return int(action.xy.shape[1])
 
     # JAX side ----------------------------------------------------------------
@@ -150,19 +150,6 @@ def observed(obs, observation_fields):
         return obs
     keep = set(observation_fields) | SENSOR_FIELDS
     return obs.replace(**{f: None for f in OBS_FIELDS if f not in keep})
-
-
-def batch_size(obs, default: int | None = None) -> int:
-    """B of a batched observation: the leading axis of its first array leaf,
-    whichever fields were sent (no field is required, ``ego`` included);
-    ``default`` when it has no array at all."""
-    for leaf in jax.tree_util.tree_leaves(obs):
-        if np.ndim(leaf) >= 1:
-            return int(np.shape(leaf)[0])
-    if default is None:
-        raise DriveE2EError("the observation holds no array to take the batch size from "
-                            "(observation_fields selected nothing)")
-    return int(default)
 
 
 def is_host(policy) -> bool:

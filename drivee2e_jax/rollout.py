@@ -270,8 +270,7 @@ class Rollout:
         key, k_act = jax.random.split(carry.key)
         every = self.timing.control_every
         last = carry.held if not self.timing.latency else jax.tree_util.tree_map(lambda q: q[-1], carry.queue)
-        self_decide = self._decide
-        decide = lambda *a: self_decide(*a, given=given)  # noqa: E731
+        decide = functools.partial(self._decide, given=given)
         if every == 1:
             proposed, pstate = decide(scenario, carry, assets, params, k_act)
         elif query is None:
@@ -322,10 +321,9 @@ class Rollout:
         not returned (the carry's ``sim.ctx`` is None): a program's outputs
         are new buffers, and copying ``ctx`` (~25 MB at B = 200) every step
         cost more than the step."""
-        carry = carry.replace(sim=carry.sim.replace(ctx=ctx))
-        carry, log = self._step_one(scenario, carry, assets, None,
+        carry, log = self._step_one(scenario, _with_ctx(carry, ctx), assets, None,
                                     query if self.timing.control_every > 1 else None, given=action)
-        out = (carry.replace(sim=carry.sim.replace(ctx=None)), log)
+        out = (_with_ctx(carry, None), log)
         return (*out, self._observe_one(scenario, carry, assets)) if observe else out
 
     def _advance_host(self, batch: Scenario, carry: Carry):
@@ -340,13 +338,13 @@ class Rollout:
         every = self.timing.control_every
         t = int(np.asarray(carry.sim.step).reshape(-1)[0])
         ctx = carry.sim.ctx
-        carry = carry.replace(sim=carry.sim.replace(ctx=None))
+        carry = _with_ctx(carry, None)
         logs, action, obs = [], None, None
         for i in range(self.chunk):
             query = t % every == 0
             if query:
                 if obs is None:  # the chunk's first control step; later ones come with the step before
-                    obs = self._host_observe(batch, carry.replace(sim=carry.sim.replace(ctx=ctx)), self.assets)
+                    obs = self._host_observe(batch, _with_ctx(carry, ctx), self.assets)
                 action = self.policy._host_act(jax.tree_util.tree_map(np.asarray, obs))
             elif action is None:  # a chunk that starts between control steps: the held action is kept
                 action = carry.held
@@ -356,7 +354,7 @@ class Rollout:
             else:
                 carry, log = self._host_step(batch, carry, ctx, self.assets, action, np.asarray(query))
             logs.append(log)
-        carry = carry.replace(sim=carry.sim.replace(ctx=ctx))
+        carry = _with_ctx(carry, ctx)
         # np.asarray leaf by leaf: ~5x faster than jax.device_get on the list.
         return carry, jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs], axis=1), *logs)
 
@@ -421,6 +419,12 @@ def balanced_chunk(total_steps: int, max_chunk: int, multiple: int = 1) -> int:
     n = -(-total_steps // max_chunk)
     size = -(-total_steps // n)
     return -(-size // multiple) * multiple
+
+
+def _with_ctx(carry: Carry, ctx) -> Carry:
+    """``carry`` with its simulator state's episode constants set to ``ctx``
+    (None: taken out, as the host loop's step program passes them apart)."""
+    return carry.replace(sim=carry.sim.replace(ctx=ctx))
 
 
 def _host_signature(policy) -> tuple:
