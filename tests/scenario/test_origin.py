@@ -20,13 +20,16 @@ import jax
 import numpy as np
 import pytest
 
+from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import evaluate, events_to_world
 from drivee2e_jax.metrics.driving_score import score_preset
 from drivee2e_jax.policy import load_policy, resolve_policy_path
-from drivee2e_jax.records import MapRecord, ScenarioRecord
+from drivee2e_jax.records import MapRecord, ScenarioRecord, SuiteRecord
 from drivee2e_jax.scenario.flat import flatten_scenario
-from drivee2e_jax.scenario.origin import ORIGIN_GRID, map_origin
+from drivee2e_jax.scenario.origin import ORIGIN_GRID, POSITION_BOUND, map_origin
 from drivee2e_jax.scenario.pack import pack, unpack
+from drivee2e_jax.scenario.schema import write_suite
+from drivee2e_jax.scenario.validate import validate_records
 from drivee2e_jax.sim import SimConfig
 from tests.helpers import sim_scenarios as ss
 
@@ -172,3 +175,61 @@ def test_far_scene_gives_the_same_rows_and_world_events(runs):
 def leaves(tree) -> dict:
     """Leaf path -> numpy array of a pytree (the StepLog)."""
     return {jax.tree_util.keystr(p): np.asarray(v) for p, v in jax.tree_util.tree_leaves_with_path(tree)}
+
+
+# --------------------------------------------------------------------------
+# Validation: a physical bound on world positions
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("where", "field"), [
+    ("scenario", "tracks[0].x[3]"), ("scenario", "route.waypoints[1]"), ("map", "lanes[0].centerline[0]"),
+    ("map", "obstacles[0].polygon[0]"), ("map", "stop_lines[0].points[0]"),
+])
+def test_positions_beyond_the_bound_are_refused_naming_file_and_field(where, field):
+    maps, scns = scenes()
+    s, m = scns[3], maps["road_obst"]
+    bad = 1.5 * POSITION_BOUND
+    if where == "scenario":
+        if field.startswith("tracks"):
+            xy = s.tracks[0].xy.copy()
+            xy[3, 0] = bad
+            s = dataclasses.replace(s, tracks=[dataclasses.replace(s.tracks[0], xy=xy), *s.tracks[1:]])
+        else:
+            wp = s.route.waypoints.copy()
+            wp[1, 1] = -bad
+            s = dataclasses.replace(s, route=dataclasses.replace(s.route, waypoints=wp))
+    else:
+        d = np.zeros(2)
+        if field.startswith("lanes"):
+            cl = m.lanes[0].centerline.copy()
+            cl[0, 1] = bad
+            m = dataclasses.replace(m, lanes=[dataclasses.replace(m.lanes[0], centerline=cl), *m.lanes[1:]])
+        elif field.startswith("obstacles"):
+            m = dataclasses.replace(m, obstacles=[dataclasses.replace(m.obstacles[0], polygon=m.obstacles[0].polygon
+                                                                      + (bad, 0.0))])
+        else:
+            m = moved_map(m, d)
+            m = dataclasses.replace(m, stop_lines=[dataclasses.replace(m.stop_lines[0],
+                                                                       points=m.stop_lines[0].points + (0.0, 1e37))])
+    problems = validate_records(SuiteRecord("s", "1", {m.map_id: m}, [s]))
+    file = f"scenarios/{s.scenario_id}.json" if where == "scenario" else f"maps/{m.map_id}.json"
+    hits = [p for p in problems if p.file == file and p.field == field]
+    assert len(problems) == 1 and hits, [str(p) for p in problems]
+    assert "|value| <= 1e+07 m" in hits[0].expected
+
+
+def test_utm_positions_are_accepted_and_a_bad_one_stops_the_write(tmp_path):
+    maps, scns = scenes()
+    far = SuiteRecord("far", "1", {k: moved_map(m, UTM * (2.4, 19.9)) for k, m in maps.items()},  # northing 9.95e6
+                      [moved_scenario(s, UTM * (2.4, 19.9)) for s in scns])
+    assert validate_records(far) == []
+    xy = far.scenarios[0].tracks[0].xy.copy()
+    xy[0] = (1e37, 0.0)  # inside float32, outside any planar frame
+    bad = dataclasses.replace(far, scenarios=[dataclasses.replace(
+        far.scenarios[0], tracks=[dataclasses.replace(far.scenarios[0].tracks[0], xy=xy),
+                                  *far.scenarios[0].tracks[1:]]), *far.scenarios[1:]])
+    with pytest.raises(DriveE2EError) as e:
+        write_suite(bad, tmp_path / "bad")
+    msg = str(e.value)
+    assert "scenarios/clean.json" in msg and "tracks[0].x[0]" in msg and "1e+37" in msg and "\n" not in msg.strip()
