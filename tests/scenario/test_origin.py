@@ -23,6 +23,8 @@ import pytest
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.eval.closedloop import evaluate, events_to_world
 from drivee2e_jax.metrics.driving_score import score_preset
+from drivee2e_jax.observe.bev import BevConfig
+from drivee2e_jax.observe.sensors import SensorConfig, build_assets
 from drivee2e_jax.policy import load_policy, resolve_policy_path
 from drivee2e_jax.records import MapRecord, ScenarioRecord, SuiteRecord
 from drivee2e_jax.scenario.flat import flatten_scenario
@@ -239,3 +241,18 @@ def test_utm_positions_are_accepted_and_a_bad_one_stops_the_write(tmp_path):
         write_suite(bad, tmp_path / "bad")
     msg = str(e.value)
     assert "scenarios/clean.json" in msg and "tracks[0].x[0]" in msg and "1e+37" in msg and "\n" not in msg.strip()
+
+
+def test_bev_rasters_are_placed_in_the_local_frame():
+    """The BEV's static rasters are drawn from the world MapRecords: ``build_assets``
+    shifts each by the packed origin, so the moved scene's table equals the unmoved one's."""
+    maps, _ = scenes()
+    near, far = packed_pair(UTM)
+    cfg = SensorConfig(bev=BevConfig())
+    a = build_assets(near, cfg, maps)
+    b = build_assets(far, cfg, {k: moved_map(m, UTM) for k, m in maps.items()})
+    assert a.raster.map_ids == b.raster.map_ids
+    np.testing.assert_array_equal(np.asarray(a.raster.origin), np.asarray(b.raster.origin))
+    np.testing.assert_array_equal(np.asarray(a.raster.words), np.asarray(b.raster.words))
+    np.testing.assert_array_equal(a.map_index, b.map_index)
+    assert np.abs(np.asarray(b.raster.origin)).max() < 100  # local, not 4e6
