@@ -413,5 +413,15 @@ def _rows_and_events(name, meta, batch, res, logs, cfg: SimConfig, eval_s_per_sc
         if reps is not None:
             row["repetition"] = int(reps[i])
         rows.append(row)
-        events[event_key(row)] = ep.extract_events(log_i)
+        events[event_key(row)] = events_to_world(ep.extract_events(log_i), meta.origin[i])
     return rows, events
+
+
+def events_to_world(events: list[dict], origin) -> list[dict]:
+    """``events`` (``metrics.episode.extract_events``: x, y in the packed
+    local frame) with x, y in the world frame: plus ``origin`` ((2,) float64,
+    the row's ``meta.origin``), rounded to mm like the local ones."""
+    ox, oy = (float(v) for v in np.asarray(origin, np.float64).reshape(2))
+    if ox == 0.0 and oy == 0.0:
+        return events
+    return [{**e, "x": round(e["x"] + ox, 3), "y": round(e["y"] + oy, 3)} if "x" in e else e for e in events]

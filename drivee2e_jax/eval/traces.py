@@ -27,8 +27,12 @@ Conventions per field group:
 * ``timeline`` facts and events describe the step that ENDED at ``times[k]``
   (index 0 is empty: zeros).
 
-Frames and units as in ``types``: world x east, y north, m; yaw CCW from +x,
-rad; s; m/s. Sensors are rendered from the SIMULATED state of each instant.
+Frames and units as in ``types``: x east, y north, m; yaw CCW from +x,
+rad; s; m/s. Positions are in the scenario's LOCAL frame, the one the
+simulator computes in (the packed arrays: world minus ``meta.origin``, see
+``scenario.origin``); ``EpisodeTrace.origin`` is that frame's world (x, y)
+(float64), so world = local + origin. The infraction events (``events``,
+``resim_events``) are in the world frame, as in the results folder. Sensors are rendered from the SIMULATED state of each instant.
 The BEV frame k is ``Simulator.observe`` of state k, the function the
 rollout renders the policy's observation with (same route window around the
 ego's route progress, ``observe.bev.route_window``): for a policy that sees a
@@ -52,7 +56,7 @@ import numpy as np
 
 from drivee2e_jax import hostbridge, replay
 from drivee2e_jax.errors import DriveE2EError
-from drivee2e_jax.eval.closedloop import begin_rollout, device_batch, with_policy_sensors
+from drivee2e_jax.eval.closedloop import begin_rollout, device_batch, events_to_world, with_policy_sensors
 from drivee2e_jax.eval.results import check_policy_current, check_run_current, policy_fingerprint, run_fingerprint
 from drivee2e_jax.eval.runspec import RUN_JSON, RunSpec, batch_sha256, folder_fingerprint
 from drivee2e_jax.geometry import from_frame
@@ -176,7 +180,7 @@ class EpisodeTrace:
       ego_accel: (T,) m/s^2.  ego_steer: (T,) front-wheel angle, rad.
       ego_yaw_rate: (T,) rad/s.
       controls: (T, 3) float applied throttle [0,1], brake [0,1], steer [-1,1].
-      plan_xy: (T, K, 2) float the policy's waypoints in the WORLD frame, m
+      plan_xy: (T, K, 2) float the policy's waypoints in the (local) map frame, m
         (None for a controls policy).   plan_valid: (T,) bool.
       agents: AgentsTrace.
       signals: (T, S) int ``types.SignalState`` per valid stop line
@@ -188,8 +192,9 @@ class EpisodeTrace:
         ``route_completion`` %, ``facts.<f>`` for every scalar
         ``infractions.StepFacts`` field (``lane_offset``, ``front_distance`` m
         may be inf), ``events.<e>`` for every ``metrics.episode.StepEvents`` field.
-      events: the stored infraction events (type, t s, x, y m, ...).
-      resim_events: the same extracted from the re-simulation.
+      events: the stored infraction events (type, t s, x, y m world frame, ...).
+      resim_events: the same extracted from the re-simulation (world frame).
+      origin: (2,) float64 world (x, y) of the local frame's (0, 0), m.
       driving_score, stored_driving_score: re-simulated and stored DS.
       reproduced: |difference| <= DS_TOLERANCE.
       bev: {channel: (T, H, W) bool} (a ``PackedBev``) or None; image row 0 is farthest ahead,
@@ -245,6 +250,7 @@ class EpisodeTrace:
     sensors: dict = dataclasses.field(default_factory=dict)
     sensor_stride: int = 1
     lidar_stride: int = 1
+    origin: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(2))
 
     @property
     def num_steps(self) -> int:
@@ -947,10 +953,11 @@ def _episode_trace(run: RunRecord, packed, row: int, j: int, sim_out: dict, fram
         route_length=float(sc.route.length),
         timeline=_timeline(log, n, cut(ego.speed), 0.0),
         events=list(run.data.get("events", {}).get(str(packed.meta.scenario_id[row]), [])),
-        resim_events=ep.extract_events(log),
+        resim_events=events_to_world(ep.extract_events(log), packed.meta.origin[row]),
         driving_score=ds,
         stored_driving_score=stored_ds,
         reproduced=bool(abs(ds - stored_ds) <= DS_TOLERANCE),
+        origin=np.asarray(packed.meta.origin[row], np.float64).copy(),
     )
     trace.sensor_stride, trace.lidar_stride = int(stride), int(lidar_stride)
     if "bev" in fr:
@@ -991,7 +998,8 @@ def _nan_to_none(x):
 
 def to_jsonable(trace: EpisodeTrace, *, bev: bool = False, lidar_stride: int = 0) -> dict:
     """A compact JSON-ready dict of ``trace`` (lists, floats rounded: positions
-    to cm, angles to mrad; non-finite -> null). Sensors are left out unless
+    to cm, angles to mrad; non-finite -> null; positions local, ``origin``
+    the world (x, y) of the local (0, 0), events world). Sensors are left out unless
     asked: ``bev=True`` adds ``bev_png``: one base64 PNG per sensor frame
     (T, or ceil(T / ``trace.sensor_stride``)) of ``bev_rgb`` (the
     shared palette of ``observe.palette``; row 0 farthest ahead) and ``bev_resolution``;
@@ -1040,6 +1048,7 @@ def to_jsonable(trace: EpisodeTrace, *, bev: bool = False, lidar_stride: int = 0
         "driving_score": round(trace.driving_score, 4),
         "stored_driving_score": _jsonable_value(trace.stored_driving_score),
         "reproduced": trace.reproduced,
+        "origin": [float(v) for v in trace.origin],
     }
     if bev and trace.bev is not None:
         out["bev_png"] = [base64.b64encode(png_bytes(bev_rgb(trace.bev, k))).decode("ascii")

@@ -15,7 +15,8 @@ Topics, per episode ``/<scenario_id>/...`` (T = the trace's steps + 1):
 =================  ========================  =====================================
 topic              schema                    messages
 =================  ========================  =====================================
-``tf``             foxglove.FrameTransform   T: ``world`` -> ``ego`` (ego box centre)
+``tf``             foxglove.FrameTransform   T: ``map`` -> ``ego`` (ego box centre)
+``origin``         foxglove.FrameTransform   T: ``world`` -> ``map`` (the scenario's origin)
 ``scene``          foxglove.SceneUpdate      T: ego, agents, signals at stop lines, plan
 ``map``            foxglove.SceneUpdate      1: lanes, boundaries, crosswalks, stop
                                              lines, drivable area, obstacles, route
@@ -31,6 +32,13 @@ topic              schema                    messages
                                              "pointcloud": ``Sensor.points``,
                                              frame ``ego``; "none": no topic)
 =================  ========================  =====================================
+
+Frames: everything is drawn in ``map``, the scenario's local frame the
+simulator computes in (``scenario.origin``: world minus the map's origin, a
+multiple of 1 km), so a source in UTM (4e6 m) renders without float32
+jitter; ``world`` -> ``map`` carries the origin (float64), so the 3D panel's
+display frame ``world`` shows world coordinates and ``map`` / ``ego`` the
+local ones. Infraction log lines give world x, y (as the results folder).
 
 Time, integer nanoseconds from the step index, never from the float time
 arrays: step ``k`` of an episode is at ``offset_ns + k * step_ns(dt)`` with
@@ -195,7 +203,7 @@ def _cube(x, y, yaw, size, rgba: Color) -> CubePrimitive:
     return CubePrimitive(pose=_pose(x, y, size[2] / 2, yaw), size=_v3(*size), color=rgba)
 
 
-def _entity(ns: int, eid: str, lifetime_ns: int, frame: str = "world", **prims) -> SceneEntity:
+def _entity(ns: int, eid: str, lifetime_ns: int, frame: str = "map", **prims) -> SceneEntity:
     return SceneEntity(timestamp=fs.timestamp(ns), frame_id=frame, id=eid, lifetime=fs.duration(lifetime_ns),
                        frame_locked=False, **prims)
 
@@ -242,9 +250,16 @@ def scene_update(trace, k: int, ns: int, dt_ns: int) -> SceneUpdate:
     return SceneUpdate(entities=ents)
 
 
+def map_transform(trace, ns: int) -> FrameTransform:
+    """``world`` -> ``map``: the scenario's local frame sits at ``trace.origin`` (float64 m)."""
+    ox, oy = (float(v) for v in np.asarray(getattr(trace, "origin", (0.0, 0.0)), np.float64).reshape(2))
+    return FrameTransform(timestamp=fs.timestamp(ns), parent_frame_id="world", child_frame_id="map",
+                          translation=_v3(ox, oy), rotation=_yaw_quat(0.0))
+
+
 def transform(trace, k: int, ns: int) -> FrameTransform:
-    """``world`` -> ``ego`` at step ``k``: the ego box centre and heading."""
-    return FrameTransform(timestamp=fs.timestamp(ns), parent_frame_id="world", child_frame_id="ego",
+    """``map`` -> ``ego`` at step ``k``: the ego box centre and heading."""
+    return FrameTransform(timestamp=fs.timestamp(ns), parent_frame_id="map", child_frame_id="ego",
                           translation=_v3(trace.ego_xy[k, 0], trace.ego_xy[k, 1]),
                           rotation=_yaw_quat(trace.ego_yaw[k]))
 
@@ -340,11 +355,13 @@ def infraction_log(trace, event: dict, ns: int) -> Log:
 def episode_metadata(trace, offset_ns: int) -> dict[str, str]:
     """The ``drivee2e.episode`` metadata record of one trace (strings only):
     scenario_id, policy, offset_ns, steps, driving_score (re-simulated),
-    stored_driving_score, and the stored row's driving_score_all /
+    stored_driving_score, origin_x / origin_y (world m of the ``map`` frame), and the stored row's driving_score_all /
     driving_score_at_fault / collisions_at_fault when it has them."""
     out = {"scenario_id": trace.scenario_id, "policy": trace.policy, "offset_ns": str(offset_ns),
            "steps": str(trace.num_steps), "driving_score": f"{trace.driving_score:.4f}",
            "stored_driving_score": f"{trace.stored_driving_score:.4f}"}
+    ox, oy = (float(v) for v in np.asarray(getattr(trace, "origin", (0.0, 0.0)), np.float64).reshape(2))
+    out["origin_x"], out["origin_y"] = repr(ox), repr(oy)
     row = getattr(trace, "row", None) or {}
     for key in ("driving_score_all", "driving_score_at_fault"):
         v = row.get(key)
@@ -364,7 +381,8 @@ def episode_metadata(trace, offset_ns: int) -> dict[str, str]:
 def topics(trace) -> dict[str, str]:
     """topic -> schema name of one trace's channels."""
     p = f"/{trace.scenario_id}"
-    out = {f"{p}/tf": "foxglove.FrameTransform", f"{p}/scene": "foxglove.SceneUpdate",
+    out = {f"{p}/tf": "foxglove.FrameTransform", f"{p}/origin": "foxglove.FrameTransform",
+           f"{p}/scene": "foxglove.SceneUpdate",
            f"{p}/map": "foxglove.SceneUpdate", f"{p}/metrics": METRICS_SCHEMA_NAME,
            f"{p}/infractions": "foxglove.Log"}
     if trace.bev is not None:
@@ -436,6 +454,7 @@ def _write(traces, stream) -> None:
         put("map", stamps[0], map_update(tr, stamps[0], len(stamps) * dt_ns))
         for k, ns in enumerate(stamps):
             put("tf", ns, transform(tr, k, ns))
+            put("origin", ns, map_transform(tr, ns))
             put("scene", ns, scene_update(tr, k, ns, dt_ns))
             if "bev" in ch:
                 put("bev", ns, bev_image(tr, k, ns))

@@ -23,9 +23,11 @@ What lands in ``Observation``:
 * ``sensors``: {name: output} of every other enabled sensor (None when none is on).
 
 The BEV's static layers come from ``SensorAssets.raster`` (every map of the
-suite rasterised once on the host, ``observe.raster.rasterize_maps``) and
-the scenario's row in it, ``map_index``: the table is shared by the whole
-batch (broadcast under ``vmap``), never copied per scenario.
+suite rasterised once on the host, ``observe.raster.rasterize_map``, each
+placed in its map's local frame: the raster origin minus the packed
+``meta.origin``, in float64) and the scenario's row in it, ``map_index``: the
+table is shared by the whole batch (broadcast under ``vmap``), never copied
+per scenario.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import numpy as np
 from drivee2e_jax.observe import bev as bev_mod
 from drivee2e_jax.observe import lidar as lidar_mod
 from drivee2e_jax.observe import raycast, registry
-from drivee2e_jax.observe.raster import rasterize_maps
+from drivee2e_jax.observe.raster import rasterize_map, stack_rasters
 from drivee2e_jax.observe.sensor_api import SensorAssets, SensorContext
 
 __all__ = ["SensorAssets", "SensorConfig", "SensorContext", "assets_axes", "build_assets", "render",
@@ -130,7 +132,10 @@ def build_assets(packed, config: SensorConfig, maps) -> SensorAssets | None:
         return None
 
     used = sorted({str(m) for m in packed.meta.map_id})
-    table = rasterize_maps({k: maps[k] for k in used}, resolution=config.raster_resolution)
+    # The packed positions are local (world - meta.origin, one origin per map): shift each raster alike.
+    origin = {str(m): np.asarray(o, np.float64) for m, o in zip(packed.meta.map_id, packed.meta.origin)}
+    rasters = [rasterize_map(maps[k], resolution=config.raster_resolution) for k in used]
+    table = stack_rasters([dataclasses.replace(r, origin=r.origin - origin[k]) for k, r in zip(used, rasters)])
     return SensorAssets(raster=table, map_index=np.asarray(table.index_of(packed.meta.map_id), np.int32))
 
 

@@ -47,7 +47,8 @@ CACHE_FORMAT = 1
 #: bump it when they change so that on-disk packed caches are rebuilt. It
 #: lives here so that the cache key is computed without importing ``pack``
 #: (which imports JAX).
-PACK_FORMAT = 3  # 2: obstacle footprints have their own vertex count; 3: map.lane_polygons, map.drivable_edges
+PACK_FORMAT = 4  # 2: obstacle footprints have their own vertex count; 3: map.lane_polygons, map.drivable_edges;
+# 4: positions in a local frame per map (meta.origin)
 
 
 def cache_key(source_parts: Mapping[str, Any], name: str) -> str:

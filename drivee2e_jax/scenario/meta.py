@@ -19,7 +19,8 @@ __all__ = ["META_STR", "META_NUM", "META_2D", "SuiteMeta"]
 META_STR = ("scenario_id", "split", "intersection_id", "map_id", "behavior", "weather", "time_of_day")
 META_NUM = {"ego_track_id": np.int64, "index": np.int64, "num_agents": np.int32,
              "num_steps": np.int32, "dt": np.float64}
-META_2D = {"route_source": np.float64, "route_destination": np.float64, "stop_line_group": np.int32}
+META_2D = {"route_source": np.float64, "route_destination": np.float64, "stop_line_group": np.int32,
+           "origin": np.float64}
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,11 @@ class SuiteMeta:
     2-D columns kept so that :func:`unpack` can rebuild the records:
     ``route_source``, ``route_destination`` (B, 2) float64 and
     ``stop_line_group`` (B, S) int32 (signal group of each stop line, -1 none).
+
+    ``origin`` (B, 2) float64: the world (x, y) of the row's local frame, m
+    (``scenario.origin.map_origin`` of its map). Every position in the packed
+    arrays, and so in the simulator's state, observations and logs, is local:
+    world = local + origin. ``route_source`` / ``route_destination`` are world.
     """
 
     scenario_id: np.ndarray
@@ -52,6 +58,7 @@ class SuiteMeta:
     route_source: np.ndarray
     route_destination: np.ndarray
     stop_line_group: np.ndarray
+    origin: np.ndarray
 
     def __len__(self) -> int:
         return len(self.scenario_id)
@@ -89,7 +96,7 @@ class SuiteMeta:
         for k, v in cols.items():
             if len(v) != n:
                 raise ValueError(f"SuiteMeta.{k}: {len(v)} rows, expected {n}")
-        for k in ("route_source", "route_destination"):
+        for k in ("route_source", "route_destination", "origin"):
             cols[k] = cols[k].reshape(n, 2)
         cols["stop_line_group"] = cols["stop_line_group"].reshape(n, -1)
         return cls(**cols)

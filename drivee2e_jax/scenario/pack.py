@@ -29,6 +29,15 @@ Semantics (pinned by tests/scenario/test_pack.py):
 * **Signals.** Row ``s`` of ``signals.state`` is the state array of stop line
   ``s``'s signal group (UNKNOWN when the group is -1 or absent from the
   record), extended to ``T`` with its last state.
+* **Frame.** Every packed position (tracks, lanes, lane polygons, boundaries,
+  crosswalks, stop lines, drivable areas and edges, obstacles, route) is in
+  the scenario's LOCAL frame: the records are first moved by minus
+  ``meta.origin[b]`` (``scenario.origin.map_origin`` of the map: its centre
+  rounded to 1 km) in float64, and everything derived (lane polygons,
+  drivable edges, the dense route, finite-difference velocities) is computed
+  there before the cast to float32. Headings, velocities, sizes and arc
+  lengths do not depend on the frame. World = local + ``meta.origin``
+  (``unpack`` adds it back; ``meta.route_source`` / ``route_destination`` stay world).
 * ``num_steps`` and ``dt_log`` come from the record; ``index`` is the row of
   the scenario in the suite's meta table (for a plain ``pack`` of a list: the
   position in that list).
@@ -66,6 +75,7 @@ from drivee2e_jax.scenario.cache import PACK_FORMAT  # its home (no JAX): the ca
 from drivee2e_jax.scenario.drivable import drivable_edges
 from drivee2e_jax.scenario.flat import flatten_scenario, unflatten_scenario
 from drivee2e_jax.scenario.lane_polygons import packed_lane_polygon
+from drivee2e_jax.scenario.origin import ego_start, map_origin, translate_map, translate_scenario
 from drivee2e_jax.scenario.routes import densify_route, junction_area, route_commands
 from drivee2e_jax.scenario.sizes import PackSizes, alloc_leaves, map_of, record_needs
 
@@ -232,6 +242,15 @@ def pack(scenarios: Sequence[ScenarioRecord], maps: dict[str, MapRecord], sizes:
         raise DriveE2EError("nothing to pack: expected at least one scenario")
     for s in scenarios:
         map_of(maps, s.map_id, s)
+    # The local frames: records moved by minus their map's origin (float64) before anything is derived.
+    world = scenarios
+    origins = np.array([map_origin(maps[s.map_id], ego_start(s)) for s in world], np.float64).reshape(-1, 2)
+    local_maps: dict[str, MapRecord] = {}
+    for s, o in zip(world, origins):  # one origin per map (a map without geometry moves as a no-op)
+        if s.map_id not in local_maps:
+            local_maps[s.map_id] = translate_map(maps[s.map_id], -o)
+    maps = local_maps
+    scenarios = [translate_scenario(s, -o) for s, o in zip(world, origins)]
     routes = [densify_route(s.route.waypoints) for s in scenarios]
     needs = record_needs(scenarios, maps, [r[0] for r in routes])
     if sizes is None:
@@ -271,9 +290,10 @@ def pack(scenarios: Sequence[ScenarioRecord], maps: dict[str, MapRecord], sizes:
         num_agents=np.array([len(s.tracks) for s in scenarios], np.int32),
         num_steps=np.array([s.num_steps for s in scenarios], np.int32),
         dt=np.array([s.dt for s in scenarios], np.float64),
-        route_source=np.array([np.asarray(s.route.source, np.float64).reshape(2) for s in scenarios]),
-        route_destination=np.array([np.asarray(s.route.destination, np.float64).reshape(2) for s in scenarios]),
+        route_source=np.array([np.asarray(s.route.source, np.float64).reshape(2) for s in world]),
+        route_destination=np.array([np.asarray(s.route.destination, np.float64).reshape(2) for s in world]),
         stop_line_group=np.stack([map_arrays[s.map_id]["_stop_line_group"] for s in scenarios]),
+        origin=origins,
     )
     return PackedBatch(unflatten_scenario(out).validate(), meta)
 
@@ -286,8 +306,9 @@ def pack(scenarios: Sequence[ScenarioRecord], maps: dict[str, MapRecord], sizes:
 def unpack(batch: PackedBatch) -> list[ScenarioRecord]:
     """Records back from a packed batch.
 
-    Reproduces every track sample (times ``k * dt``, positions, yaw wrapped to
-    (-pi, pi], velocity, flags; float32 precision), ids, sizes, categories,
+    Reproduces every track sample (times ``k * dt``, world positions: the
+    packed local ones plus ``meta.origin``, yaw wrapped to (-pi, pi],
+    velocity, flags; float32 precision of the local positions), ids, sizes, categories,
     metadata and map ids. Differences from the packed records, by design:
     tracks come back ego first then by id; ``vel`` is always present (finite
     differences where the record had none); route waypoints are the dense 1 m
@@ -307,7 +328,7 @@ def unpack(batch: PackedBatch) -> list[ScenarioRecord]:
                 category=_CATEGORY_NAME[int(f["tracks.category"][b, a])],
                 size=f["tracks.size"][b, a].astype(np.float64),
                 t=k * dt,
-                xy=f["tracks.xy"][b, a, k].astype(np.float64),
+                xy=f["tracks.xy"][b, a, k].astype(np.float64) + meta.origin[b],
                 yaw=f["tracks.yaw"][b, a, k].astype(np.float64),
                 vel=f["tracks.vel"][b, a, k].astype(np.float64),
                 visible=f["tracks.visible"][b, a, k].copy(),
@@ -318,7 +339,7 @@ def unpack(batch: PackedBatch) -> list[ScenarioRecord]:
             if g >= 0 and f["map.stop_line_valid"][b, i] and int(g) not in signals:
                 signals[int(g)] = _SIGNAL_INV[f["signals.state"][b, i, :n]]
         rvalid = f["route.valid"][b]
-        route = RouteRecord(waypoints=f["route.xy"][b][rvalid].astype(np.float64),
+        route = RouteRecord(waypoints=f["route.xy"][b][rvalid].astype(np.float64) + meta.origin[b],
                             source=meta.route_source[b].copy(), destination=meta.route_destination[b].copy())
         out.append(ScenarioRecord(
             scenario_id=str(meta.scenario_id[b]), split=str(meta.split[b]),

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.scenario.origin import POSITION_BOUND, POSITION_TEXT
 
 __all__ = [
     "SAFE_ID", "SAFE_ID_TEXT", "INT32_RANGE", "FLOAT32_MAX", "Problem", "problems_error", "Checker", "short", "json_kind", "is_int", "is_num",
@@ -219,8 +220,10 @@ class Checker:
         return list(v)
 
     def array(self, value: Any, path: str, cols: int | None = None, min_len: int = 0,
-              length: int | None = None, minimum: float | None = None) -> np.ndarray | None:
-        """A float array of shape (n,) or (n, cols), finite, checked elementwise."""
+              length: int | None = None, minimum: float | None = None,
+              position: bool = False) -> np.ndarray | None:
+        """A float array of shape (n,) or (n, cols), finite, checked elementwise;
+        ``position``: world coordinates, each within ``POSITION_BOUND`` m."""
         a = _as_numeric(value)
         if a is None or (a.ndim != (1 if cols is None else 2) and a.size > 0) or (
             cols is not None and a.ndim == 2 and a.shape[1] != cols
@@ -246,6 +249,13 @@ class Checker:
             got = short(value[i]) if cols is None else "[" + ", ".join(short(float(x)) for x in a[i]) + "]"
             self.add(f"{path}[{i}]", f"finite numbers, {FLOAT32_TEXT}", got)
             return None
+        if position:
+            far = np.abs(a) > POSITION_BOUND if cols is None else (np.abs(a) > POSITION_BOUND).any(axis=1)
+            if far.any():
+                i = int(np.flatnonzero(far)[0])
+                got = short(float(a[i])) if cols is None else "[" + ", ".join(short(float(x)) for x in a[i]) + "]"
+                self.add(f"{path}[{i}]", POSITION_TEXT, got)
+                return None
         if minimum is not None:
             low = a < minimum if cols is None else (a < minimum).any(axis=1)
             if low.any():

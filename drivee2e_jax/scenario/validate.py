@@ -153,7 +153,7 @@ def _check_track(obj: Any, p: str, c: Checker, dt: float | None, num_steps: int 
     cols = {}
     for key in ("t", "x", "y", "yaw", "vx", "vy"):
         if key in obj:
-            cols[key] = c.array(obj[key], join_path(p, key))
+            cols[key] = c.array(obj[key], join_path(p, key), position=key in ("x", "y"))
     for key in ("visible", "quality"):
         if key in obj:
             cols[key] = c.flags(obj[key], join_path(p, key))
@@ -202,9 +202,11 @@ def _check_route(obj: Any, p: str, c: Checker) -> RouteRecord | None:
     mark = c.mark()
     if not c.fields(obj, p, _ROUTE_REQ):
         return None
-    wp = c.array(obj["waypoints"], join_path(p, "waypoints"), cols=2, min_len=2) if "waypoints" in obj else None
-    src = c.array(obj["source"], join_path(p, "source"), length=2) if "source" in obj else None
-    dst = c.array(obj["destination"], join_path(p, "destination"), length=2) if "destination" in obj else None
+    wp = (c.array(obj["waypoints"], join_path(p, "waypoints"), cols=2, min_len=2, position=True)
+          if "waypoints" in obj else None)
+    src = c.array(obj["source"], join_path(p, "source"), length=2, position=True) if "source" in obj else None
+    dst = (c.array(obj["destination"], join_path(p, "destination"), length=2, position=True)
+           if "destination" in obj else None)
     if c.mark() > mark:
         return None
     return RouteRecord(waypoints=wp, source=src, destination=dst)
@@ -279,7 +281,7 @@ def check_scenario(obj: Any, c: Checker) -> ScenarioRecord | None:
 def _polygons(obj: dict, key: str, c: Checker, min_len: int) -> list[np.ndarray]:
     out = []
     for i, poly in enumerate(c.listing(obj, key, "", default=[]) or []):
-        a = c.array(poly, f"{key}[{i}]", cols=2, min_len=min_len)
+        a = c.array(poly, f"{key}[{i}]", cols=2, min_len=min_len, position=True)
         if a is not None:
             out.append(a)
     return out
@@ -301,7 +303,7 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         if not c.fields(lobj, p, _LANE_REQ, _LANE_OPT):
             continue
         lid = c.integer(lobj, "id", p)
-        cl = (c.array(lobj["centerline"], join_path(p, "centerline"), cols=2, min_len=2)
+        cl = (c.array(lobj["centerline"], join_path(p, "centerline"), cols=2, min_len=2, position=True)
               if "centerline" in lobj else None)
         width = c.number(lobj, "width", p, minimum=0.0, default=LaneRecord.width)
         speed = c.number(lobj, "speed_limit", p, minimum=0.0, default=LaneRecord.speed_limit)
@@ -309,9 +311,9 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         succ = c.ints(lobj["successors"], join_path(p, "successors")) if "successors" in lobj else np.zeros(0, np.int64)
         left = c.string(lobj, "left_marking", p, choices=MARKINGS, default=LaneRecord.left_marking)
         right = c.string(lobj, "right_marking", p, choices=MARKINGS, default=LaneRecord.right_marking)
-        lb = (c.array(lobj["left_boundary"], join_path(p, "left_boundary"), cols=2, min_len=2)
+        lb = (c.array(lobj["left_boundary"], join_path(p, "left_boundary"), cols=2, min_len=2, position=True)
               if "left_boundary" in lobj else None)
-        rb = (c.array(lobj["right_boundary"], join_path(p, "right_boundary"), cols=2, min_len=2)
+        rb = (c.array(lobj["right_boundary"], join_path(p, "right_boundary"), cols=2, min_len=2, position=True)
               if "right_boundary" in lobj else None)
         if lid is not None and lid in lane_ids:
             c.add(join_path(p, "id"), "a unique lane id", f"{lid} (also lanes[{lane_ids[lid]}])")
@@ -336,7 +338,8 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         p = f"boundaries[{i}]"
         if not c.fields(bobj, p, ("points", "marking")):
             continue
-        pts = c.array(bobj["points"], join_path(p, "points"), cols=2, min_len=2) if "points" in bobj else None
+        pts = (c.array(bobj["points"], join_path(p, "points"), cols=2, min_len=2, position=True)
+               if "points" in bobj else None)
         mk = c.string(bobj, "marking", p, choices=MARKINGS)
         if pts is not None and mk is not None:
             boundaries.append(BoundaryRecord(points=pts, marking=mk))
@@ -352,7 +355,8 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         if not c.fields(sobj, p, ("id", "points", "lane_id", "signal_group")):
             continue
         sid = c.integer(sobj, "id", p)
-        pts = c.array(sobj["points"], join_path(p, "points"), cols=2, length=2) if "points" in sobj else None
+        pts = (c.array(sobj["points"], join_path(p, "points"), cols=2, length=2, position=True)
+               if "points" in sobj else None)
         lane_id = c.integer(sobj, "lane_id", p)
         group = c.integer(sobj, "signal_group", p, minimum=-1)
         if lane_id is not None and lane_id != -1 and lane_id not in lane_ids:
@@ -370,7 +374,8 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         m = c.mark()
         if not c.fields(oobj, p, ("polygon", "height"), ("kind",)):
             continue
-        poly = c.array(oobj["polygon"], join_path(p, "polygon"), cols=2, min_len=3) if "polygon" in oobj else None
+        poly = (c.array(oobj["polygon"], join_path(p, "polygon"), cols=2, min_len=3, position=True)
+                if "polygon" in oobj else None)
         height = c.number(oobj, "height", p, minimum=0.0)
         kind = c.string(oobj, "kind", p, default=ObstacleRecord.kind)
         if c.mark() == m:

@@ -1,7 +1,10 @@
 """One ``eval.traces.EpisodeTrace`` -> the episode record the HTML player reads.
 
-Host side only. An episode record (all coordinates world frame, m, rounded to
-1 cm; ``flat`` = ``[x0, y0, x1, y1, ...]``; frame ``k`` is ``trace.times[k]``)::
+Host side only. An episode record (all coordinates in the scenario's local
+frame, the one the simulator computes in, m, rounded to 1 cm; ``origin`` is
+the world (x, y) of its (0, 0), so world = local + origin (``scenario.origin``:
+drawing a UTM frame's 4e6 m directly would jitter in the browser's float32
+canvas); ``flat`` = ``[x0, y0, x1, y1, ...]``; frame ``k`` is ``trace.times[k]``)::
 
     id, policy, status, ds, rc (stored Driving Score / route completion, %),
     ds_all, ds_at_fault (stored DS with every collision counted / with only
@@ -13,7 +16,9 @@ Host side only. An episode record (all coordinates world frame, m, rounded to
     agents:  [{id, cat, l, w, f0, x, y, yaw}]  samples from frame f0 on, null where absent,
     signals: [S][n] ``SignalState`` values, one row per map stop line,
     metrics: [{name, label, unit, values: [n], range?: [lo, hi], color?}],
-    events:  [{type, t, x, y, frame, ...}]  the stored infraction events
+    origin:  [x, y] world m of the local frame (float64; 0, 0 for a suite near its origin),
+    events:  [{type, t, x, y, frame, ...}]  the stored infraction events, x, y local
+             (the results folder's world x, y minus ``origin``)
              (collisions also carry collision_type, at_fault and ``fault``,
              a short label such as "active_front, at fault": ``collision_label``),
     bev:     {stride, channels, colors, h, w, count, sheet: PNG data URI} or null:
@@ -146,14 +151,19 @@ def collision_label(event: dict) -> str | None:
     return ", ".join(parts)
 
 
-def events_payload(events: list[dict], times: np.ndarray) -> list[dict]:
+def events_payload(events: list[dict], times: np.ndarray, origin=(0.0, 0.0)) -> list[dict]:
     """Stored events with the frame (nearest traced instant) each happened
-    at, and for collisions ``fault`` (``collision_label``)."""
+    at, for collisions ``fault`` (``collision_label``), and x, y moved from
+    the world frame to the local one (minus ``origin``, world m)."""
+    ox, oy = (float(v) for v in np.asarray(origin, np.float64).reshape(2))
     out = []
     for e in events:
         k = int(np.clip(np.searchsorted(times, float(e.get("t", 0.0)) - 1e-6), 0, len(times) - 1))
         label = collision_label(e)
-        out.append({**e, "frame": k, **({"fault": label} if label else {})})
+        local = {}
+        if isinstance(e.get("x"), int | float) and isinstance(e.get("y"), int | float):
+            local = {"x": round(e["x"] - ox, 3), "y": round(e["y"] - oy, 3)}
+        out.append({**e, **local, "frame": k, **({"fault": label} if label else {})})
     return sorted(out, key=lambda e: e["frame"])
 
 
@@ -293,7 +303,8 @@ def episode_payload(trace, *, sensors: bool = True, bev_period_s: float = 0.2, l
         "agents": agents_payload(trace.agents),
         "signals": np.asarray(trace.signals, np.int64).T.tolist(),
         "metrics": metrics_payload(trace),
-        "events": events_payload(trace.events, times),
+        "origin": [float(v) for v in getattr(trace, "origin", (0.0, 0.0))],
+        "events": events_payload(trace.events, times, getattr(trace, "origin", (0.0, 0.0))),
         "bev": bev_payload(trace, _stride(trace.dt, bev_period_s)) if sensors else None,
         "lidar": lidar_payload(trace, _stride(trace.dt, lidar_period_s), lidar_max_points) if sensors else None,
         "sensors": sensor_panes(trace, _stride(trace.dt, bev_period_s), _stride(trace.dt, lidar_period_s),

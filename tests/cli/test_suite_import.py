@@ -196,3 +196,18 @@ def test_a_position_beyond_float32_is_refused_naming_the_track_and_field(tmp_pat
         "(the float32 range the simulator computes in), got 1e+308\n") in err, err
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in recwarn]
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("value", [1e37, -2.5e7])
+def test_a_position_beyond_any_planar_frame_is_refused_in_one_line(tmp_path, capsys, value):
+    """Within float32 but no place on Earth in a planar frame (|x| > 1e7 m): the
+    import stops before writing, naming the scenario file and field it would have
+    been (every importer writes through ``validate_records``), exit 2."""
+    d = scenario_dict()
+    d["tracks"]["ego"]["state"]["position"][5, 0] = value
+    pk = write_pkl(tmp_path / "sd_far.pkl", d)
+    code, _, err = run(capsys, "suite", "import", "scenarionet", pk, "--out", tmp_path / "out")
+    assert code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith("drivee2e: error: cannot write suite 'out': scenarios/synthetic_tiny-1.json: "), err
+    assert "|value| <= 1e+07 m" in err and f"{value:g}" in err, err  # the ego's route is checked before its track
+    assert not (tmp_path / "out").exists()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 
 import numpy as np
@@ -11,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivee2e_jax.errors import DriveE2EError
+from drivee2e_jax.eval import runspec
 from drivee2e_jax.eval.bench import BenchConfig
 from drivee2e_jax.eval.results import RunDir
 from drivee2e_jax.eval.runspec import RunSpec, batch_sha256, check_dt_against_logs, pick_split
@@ -19,6 +21,7 @@ from drivee2e_jax.eval.variants import VARIANTS
 from drivee2e_jax.metrics.driving_score import SCORE_PRESETS
 from drivee2e_jax.records import SuiteRecord
 from drivee2e_jax.rollout import ControlTiming
+from drivee2e_jax.scenario.flat import flatten_scenario
 from drivee2e_jax.scenario.schema import write_suite
 from tests.helpers import sim_scenarios as ss
 
@@ -287,3 +290,19 @@ def test_a_folder_of_another_collision_mode_agent_model_or_preset_is_refused(tmp
     RunDir(out, other, force=True).close()
     assert not (out / "policies" / "p.json").exists()
     assert json.loads((out / "run.json").read_text()).get(key) == other[key]
+
+
+def test_suite_fingerprint_counts_the_origin_only_where_it_is_not_zero():
+    """A suite near (0, 0) (origin 0: twin15, tiny) keeps the fingerprint it had before
+    ``meta.origin`` existed, so its results folders stay current; a moved origin changes it."""
+    b = ss.build([ss.clean()])
+    assert not b.meta.origin.any()
+    before = hashlib.sha256()  # the fingerprint as computed before the origin column
+    for name, leaf in sorted(flatten_scenario(b.scenario).items()):
+        runspec._hash_array(before, f"scenario.{name}", leaf)
+    for name, col in sorted(b.meta.columns().items()):
+        if name != "origin":
+            runspec._hash_array(before, f"meta.{name}", col)
+    assert batch_sha256(b) == before.hexdigest()
+    moved = dataclasses.replace(b, meta=dataclasses.replace(b.meta, origin=b.meta.origin + (4e6, 5e5)))
+    assert batch_sha256(moved) != batch_sha256(b)

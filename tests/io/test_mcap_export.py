@@ -31,7 +31,7 @@ from drivee2e_jax.scenario.suite import load_suite
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "drivee2e_jax" / "scenario" / "examples" / "tiny"
 SMALL_SENSORS = SensorConfig(bev=BevConfig(height=32, width=32, resolution=1.0), lidar=LidarConfig(channels=4, azimuth_bins=32))
-PER_STEP = ("tf", "scene", "bev", "lidar", "metrics")
+PER_STEP = ("tf", "origin", "scene", "bev", "lidar", "metrics")
 FOXGLOVE = {"foxglove.FrameTransform", "foxglove.SceneUpdate", "foxglove.CompressedImage", "foxglove.PointCloud",
             "foxglove.Log"}
 
@@ -110,7 +110,7 @@ def check_foxglove_rules(msg, log_time: int, where: str) -> None:
     for m in _walk(msg):
         kind = m.DESCRIPTOR.full_name
         if kind == "foxglove.SceneEntity":
-            assert m.id and m.frame_id == "world" and to_ns(m.timestamp) == log_time and to_ns(m.lifetime) > 0, where
+            assert m.id and m.frame_id == "map" and to_ns(m.timestamp) == log_time and to_ns(m.lifetime) > 0, where
         elif kind == "foxglove.LinePrimitive":
             assert m.HasField("color") or len(m.colors) == len(m.points) > 0, f"{where}: no color/colors"
             assert m.thickness > 0 and m.type in (0, 1, 2) and all(i < len(m.points) for i in m.indices), where
@@ -152,7 +152,8 @@ def test_every_channel_schema_and_message_count(exported):
     want = {}
     for t in traces:
         p = f"/{t.scenario_id}"
-        want.update({f"{p}/tf": "foxglove.FrameTransform", f"{p}/scene": "foxglove.SceneUpdate",
+        want.update({f"{p}/tf": "foxglove.FrameTransform", f"{p}/origin": "foxglove.FrameTransform",
+                     f"{p}/scene": "foxglove.SceneUpdate",
                      f"{p}/map": "foxglove.SceneUpdate", f"{p}/bev": "foxglove.CompressedImage",
                      f"{p}/lidar": "foxglove.PointCloud", f"{p}/metrics": "drivee2e.EpisodeMetrics",
                      f"{p}/infractions": "foxglove.Log"})
@@ -267,7 +268,11 @@ def test_payloads_carry_the_trace(exported):
     for t in traces:
         p = f"/{t.scenario_id}"
         tf = [transform.FromString(m.data) for m in by[f"{p}/tf"]]
-        assert {(d.parent_frame_id, d.child_frame_id) for d in tf} == {("world", "ego")}
+        assert {(d.parent_frame_id, d.child_frame_id) for d in tf} == {("map", "ego")}
+        # world -> map carries the scenario's origin at every step (map -> ego: the local ego pose).
+        placed = [transform.FromString(m.data) for m in by[f"{p}/origin"]]
+        assert {(d.parent_frame_id, d.child_frame_id) for d in placed} == {("world", "map")}
+        assert {(d.translation.x, d.translation.y) for d in placed} == {tuple(float(v) for v in t.origin)}
         np.testing.assert_allclose([[d.translation.x, d.translation.y] for d in tf], t.ego_xy, atol=1e-5)
         yaw = [2 * np.arctan2(d.rotation.z, d.rotation.w) for d in tf]
         np.testing.assert_allclose(np.angle(np.exp(1j * (np.array(yaw) - t.ego_yaw))), 0, atol=1e-5)
@@ -321,7 +326,7 @@ def test_cli_exports_and_refuses_to_overwrite(run_dir, tmp_path, capsys):
     assert "1 episode(s) of constant_velocity" in capsys.readouterr().out
     with out.open("rb") as f:
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
-    assert topics == {f"/s_left/{n}" for n in ("tf", "scene", "map", "metrics", "infractions")}
+    assert topics == {f"/s_left/{n}" for n in ("tf", "origin", "scene", "map", "metrics", "infractions")}
     before = out.read_bytes()
     assert main(["export-mcap", str(run_dir), "--out", str(out)]) == 2
     err = capsys.readouterr().err
@@ -362,3 +367,16 @@ def test_collision_event_log_names_type_and_fault_and_metadata_carries_both_ds()
     assert all(isinstance(v, str) for v in md.values()) and md["offset_ns"] == "5"
     old = mx.episode_metadata(SimpleNamespace(**{**vars(tr), "row": {"driving_score": 60.0}}), 0)
     assert "driving_score_all" not in old and old["driving_score"] == "60.0000"
+
+
+def test_map_frame_sits_at_the_scenario_origin():
+    """Entities live in ``map`` (the local frame the simulator computes in); ``world`` -> ``map``
+    carries the packed ``meta.origin`` in float64, so a UTM scene keeps its world coordinates."""
+    tr = SimpleNamespace(scenario_id="s0", policy="p", num_steps=10, driving_score=60.0, stored_driving_score=60.0,
+                         row={}, origin=np.array([4000000.0, 512345.5]))
+    tf = mx.map_transform(tr, 7)
+    assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "map") and to_ns(tf.timestamp) == 7
+    assert (tf.translation.x, tf.translation.y, tf.translation.z) == (4000000.0, 512345.5, 0.0)
+    assert (tf.rotation.x, tf.rotation.y, tf.rotation.z, tf.rotation.w) == (0.0, 0.0, 0.0, 1.0)
+    md = mx.episode_metadata(tr, 0)
+    assert (float(md["origin_x"]), float(md["origin_y"])) == (4000000.0, 512345.5)

@@ -238,6 +238,10 @@ CASES = {
     "route point beyond float32": (S, _set(["route", "waypoints", 1], [0.0, -5e38]), "route.waypoints[1]",
                                    "float32 range"),
     "lane width beyond float32": (M, _set(["lanes", 0, "width"], 1e39), "lanes[0].width", "float32 range"),
+    # positions within float32 but beyond any planar frame (scenario.origin.POSITION_BOUND)
+    "position beyond 1e7 m": (S, _set(["tracks", 0, "x", 2], 1e37), "tracks[0].x[2]", "|value| <= 1e+07 m"),
+    "lane point beyond 1e7 m": (M, _set(["lanes", 0, "centerline", 0], [0.0, -2e7]), "lanes[0].centerline[0]",
+                                "|value| <= 1e+07 m"),
     "dt as a 401-digit integer": (S, _set(["dt"], int("9" * 401)), "dt", "float32 range"),
     "signal group key beyond int32": (S, lambda o: o["signals"].__setitem__("9" * 12, o["signals"].pop("0")),
                                       f'signals["{"9" * 12}"]', "an integer signal group in [-2147483648, 2147483647]"),

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from drivee2e_jax.viz import encode
+from drivee2e_jax.viz.payload import episode_payload, events_payload
 from drivee2e_jax.viz.player import CALLBACK, PlayerWriter, files_dir, write_player
 from tests.helpers.fake_traces import BEV_CH, T, fake_trace
 
@@ -218,3 +219,15 @@ def test_ds_both_ways_and_collision_type_and_fault_in_the_payload(tmp_path):
     assert index_entry({k: v for k, v in old.items() if k not in ("ds_all", "ds_at_fault")}, "e0")["ds_all"] is None
     page = write_player([tr], tmp_path / "p.html").read_text(encoding="utf-8")
     assert 'data-key="ds_at_fault"' in page and "e.fault" in page
+
+
+def test_events_are_drawn_in_the_local_frame_of_the_trace():
+    """Stored events are world x, y (results folder); the player draws the trace's local
+    positions, so the payload moves each event by minus the trace's origin and names the origin."""
+    times = np.arange(5) * 0.1
+    ev = [{"type": "collisions_vehicle", "t": 0.2, "x": 4000012.5, "y": 499990.25}, {"type": "timeout", "t": 0.4}]
+    got = events_payload(ev, times, (4e6, 5e5))
+    assert (got[0]["x"], got[0]["y"], got[0]["frame"]) == (12.5, -9.75, 2) and "x" not in got[1]
+    tr = fake_trace(events=[])
+    tr.origin = np.array([4e6, 5e5])
+    assert episode_payload(tr, sensors=False)[0]["origin"] == [4e6, 5e5]
