@@ -386,8 +386,9 @@ class Rollout:
 
 class LogReplay(StatelessPolicy):
     """The reference demonstration as a policy (``zoo/log_replay.py`` ships it
-    by name): each step the controls that move the simulated ego onto the
-    logged next pose (``Observation.privileged.log_controls``). ``evaluate``
+    by name): each step the controls that carry the simulated ego to the
+    logged position 0.5 s ahead (``Observation.privileged.log_controls``,
+    ``SimConfig.log_horizon_s``). ``evaluate``
     also rolls it out as NAVSIM's human reference."""
 
     name = "log_replay"

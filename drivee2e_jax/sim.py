@@ -65,6 +65,15 @@ class SimConfig:
         logged vehicle on its logged path with its speed from IDM, reacting
         to the ego and to each other (``reactive``; pedestrians, cyclists and
         static objects still replay).
+      log_horizon_s: s, how far ahead along the ego's log the reference
+        action aims (``Privileged.log_controls``, what ``log_replay`` drives
+        with): the constant controls that reach the logged position
+        ``log_horizon_s`` ahead, recomputed every step (a receding horizon;
+        shortened to the end of the log, and to one step where the log has
+        a gap there). One step (``dt``) matches the next logged position
+        exactly and copies the log's 10 Hz position noise into the yaw rate
+        and the acceleration; 0.5 s follows the log to centimetres with
+        smooth controls (docs/metrics.md, "Comfort signals").
     """
 
     dt: float = 0.1
@@ -77,6 +86,7 @@ class SimConfig:
     dynamics_model: DynamicsModel = dataclasses.field(default_factory=KinematicBicycle)
     agents: str = "log"
     idm: reactive.IDMParams = dataclasses.field(default_factory=reactive.IDMParams)
+    log_horizon_s: float = 0.5
 
     def __post_init__(self):
         if self.agents not in AGENT_MODELS:
@@ -88,6 +98,8 @@ class SimConfig:
             object.__setattr__(self, "controller", dataclasses.replace(self.controller, vehicle=self.dynamics))
         if not self.dt > 0:
             raise ValueError(f"SimConfig.dt must be > 0 s, got {self.dt}")
+        if not self.log_horizon_s > 0:
+            raise ValueError(f"SimConfig.log_horizon_s must be > 0 s, got {self.log_horizon_s}")
         if self.max_episode_s is not None and not self.max_episode_s > 0:
             raise ValueError(f"SimConfig.max_episode_s must be > 0 s, got {self.max_episode_s}")
 
@@ -297,8 +309,19 @@ class Simulator:
 
     def _privileged(self, scenario: Scenario, ego: EgoState) -> Privileged:
         cfg = self.config
-        nxt = replay.ego_log_at(scenario.tracks, scenario.ego_index, ego.t + cfg.dt, scenario.dt_log)
-        controls = cfg.dynamics_model.inverse(ego, nxt.xy, nxt.yaw, cfg.dt, cfg.dynamics)
+        tracks, e = scenario.tracks, scenario.ego_index
+        nxt = replay.ego_log_at(tracks, e, ego.t + cfg.dt, scenario.dt_log)
+        # Receding horizon (SimConfig.log_horizon_s): aim at the logged position h ahead,
+        # h shortened to the log's last valid sample, one step where the log has a gap there.
+        valid = tracks.valid[e]
+        last = jnp.max(jnp.where(valid, jnp.arange(valid.shape[0]), 0)) * scenario.dt_log
+        h = jnp.clip(last - ego.t, cfg.dt, max(cfg.log_horizon_s, cfg.dt))
+        far = replay.ego_log_at(tracks, e, ego.t + h, scenario.dt_log)
+        use_far = far.valid & nxt.valid
+        h = jnp.where(use_far, h, cfg.dt)
+        target_xy = jnp.where(use_far, far.xy, nxt.xy)
+        target_yaw = jnp.where(use_far, far.yaw, nxt.yaw)
+        controls = cfg.dynamics_model.inverse(ego, target_xy, target_yaw, h, cfg.dynamics)
         return Privileged(ego=ego, log_next_xy=nxt.xy, log_next_yaw=nxt.yaw, log_valid=nxt.valid, log_controls=controls)
 
     def observe(self, scenario: Scenario, state: SimState, assets=None) -> Observation:

@@ -431,9 +431,12 @@ class Privileged:
       log_next_xy:  (2,) float32 the logged ego position one sim step ahead, m.
       log_next_yaw: () float32 the logged ego heading one sim step ahead, rad.
       log_valid:    () bool, the logged ego exists at that time.
-      log_controls: Controls that move the simulated ego onto the logged next
-                    pose (``dynamics.inverse``): the reference demonstration
-                    expressed as an action from the CURRENT simulated state.
+      log_controls: Controls that carry the simulated ego to the logged
+                    position ``SimConfig.log_horizon_s`` (0.5 s) ahead
+                    (``dynamics.inverse`` over that horizon, recomputed every
+                    step; one step at the end of the log): the reference
+                    demonstration expressed as an action from the CURRENT
+                    simulated state, smooth where the log's positions jitter.
     """
 
     ego: EgoState

@@ -110,63 +110,81 @@ def real_suite(imported):
                                           maps={k: v for k, v in merged.maps.items() if k in used}))
 
 
+@pytest.fixture(scope="module")
+def scored(real_suite):
+    """``log_replay`` on the samples under a preset, evaluated once per preset."""
+    done = {}
+
+    def get(preset):
+        if preset not in done:
+            done[preset] = evaluate(load_policy(resolve_policy_path("log_replay")), real_suite, split=None,
+                                    config=SimConfig(score=score_preset(preset)))
+        return done[preset]
+    return get
+
+
 @pytest.mark.parametrize("preset", ["nuplan", "navsim"])
-def test_log_replay_scores_100_under_the_nuplan_and_navsim_presets(real_suite, preset):
+def test_log_replay_scores_100_under_the_nuplan_and_navsim_presets(scored, preset):
     """With logged agents, the log scores DS 100 both with every collision and
     at-fault only under each preset; NAVSIM's human filter makes its EPDMS 1.
     nuPlan has no human filter: its score of the log is whatever the log's own
     comfort / TTC give (reported, in [0, 1])."""
-    res = evaluate(load_policy(resolve_policy_path("log_replay")), real_suite, split=None,
-                   config=SimConfig(score=score_preset(preset)))
-    for r in res.rows:
-        assert (r["driving_score_all"], r["driving_score_at_fault"], r["success_all"]) == (100.0, 100.0, True), r
-        if preset == "navsim":
-            # EP is a ratio of progress: the simulated ego tracks its log to within millimetres.
-            assert r["epdms"] == pytest.approx(1.0, abs=1e-4), r["scenario_id"]
-        else:
-            assert 0.0 <= r["nuplan_score"] <= 1.0 and r["nuplan_no_ego_at_fault_collisions"] == 1.0
-    if preset == "nuplan":
-        _check_comfort_against_the_log(real_suite, res.rows)
-
-
-def _check_comfort_against_the_log(real_suite, rows):
-    """Where ``ego_is_comfortable`` of the replayed log fails, and why.
-
-    The recorded path itself is scored with nuPlan's bounds, its body-frame
-    acceleration estimated by ``nuplan.path_comfort_inputs`` (no simulator
-    involved). Every scene whose log passes is also passed by its replay,
-    except two, both costs of the replay's one-step position matching
-    (``dynamics.inverse``), not of the drive: AV2 0a1e's second 5 s window,
-    whose replay starts below the logged speed and catches up at full
-    throttle (lon acc 3.27 > 2.40 m/s^2; the log's own peak 2.19), and
-    nuScenes 0061's first window, whose replay reproduces the positions'
-    10 Hz jitter step by step (lon acc -5.9..+4.4; the log's -2.8..+1.3
-    once the jitter is smoothed). Every other failure is the recording's own
-    (AV2 0a1e's first and last second, nuScenes 0103's 0.4 m jump back at
-    t = 19.3 s, nuScenes 0061's jitter, NGSIM's video-tracking noise), and a
-    recorded human drive without such glitches scores comfortable: the whole
-    AV2 sensor log and its third 5 s window (experiments/comfort/diagnose.py
-    prints every signal)."""
-    packed = real_suite.pack(None)
-    sc = packed.scenario
-    index = {str(sid): i for i, sid in enumerate(packed.meta.scenario_id)}
-    replay_ok, log_ok = set(), set()
+    rows = scored(preset).rows
     for r in rows:
-        i = index[r["scenario_id"]]
-        e = int(np.asarray(sc.ego_index)[i])
-        valid = np.asarray(sc.tracks.valid[i, e], bool)
-        xy = np.asarray(sc.tracks.xy[i, e], np.float64)[valid]
-        yaw = np.unwrap(np.asarray(sc.tracks.yaw[i, e], np.float64)[valid])
-        dt = float(np.asarray(sc.dt_log)[i])
-        lon, lat, mag = nuplan.path_comfort_inputs(xy, yaw, dt)
-        if nuplan.comfort_score(lon, lat, yaw, np.arange(len(xy)) * dt, mag) == 1.0:
-            log_ok.add(r["scenario_id"])
-        if r["nuplan_ego_is_comfortable"] == 1.0:
-            replay_ok.add(r["scenario_id"])
-    assert replay_ok == {"av2_adcf7d18-0510-35b0-a2fa-b4cea13a6d76", "av2_adcf7d18-0510-35b0-a2fa-b4cea13a6d76_w02"}, \
-        replay_ok
-    assert log_ok - replay_ok == {"av2_0a1e6f0a-1817-4a98-b02e-db8c9327d151_w01", "nuscenes_scene-0061_w00"}, \
-        (log_ok, replay_ok)
+        assert (r["driving_score_all"], r["driving_score_at_fault"], r["success_all"]) == (100.0, 100.0, True), r
+        if preset == "nuplan":
+            assert 0.0 <= r["nuplan_score"] <= 1.0 and r["nuplan_no_ego_at_fault_collisions"] == 1.0
+    if preset == "navsim":
+        # EP is the simulated ego's progress over the LOGGED ego's at the same time: the replay
+        # (0.5 s horizon) tracks its log to centimetres, not exactly. AV2 0a1e, whose log stops at
+        # -14 m/s^2 in its last second, ends 0.4 % short of the logged progress (EP 0.9963).
+        epdms = {r["scenario_id"]: r["epdms"] for r in rows}
+        assert min(epdms.values()) >= 0.995, epdms
+        assert sum(v < 1.0 - 1e-4 for v in epdms.values()) <= 2, epdms
+
+
+def _logged_path_is_comfortable(sc, i) -> bool:
+    """nuPlan's comfort bounds on the RECORDED path of scenario ``i`` (no
+    simulator: its body-frame acceleration estimated by
+    ``nuplan.path_comfort_inputs``)."""
+    e = int(np.asarray(sc.ego_index)[i])
+    valid = np.asarray(sc.tracks.valid[i, e], bool)
+    xy = np.asarray(sc.tracks.xy[i, e], np.float64)[valid]
+    yaw = np.unwrap(np.asarray(sc.tracks.yaw[i, e], np.float64)[valid])
+    dt = float(np.asarray(sc.dt_log)[i])
+    lon, lat, mag = nuplan.path_comfort_inputs(xy, yaw, dt)
+    return nuplan.comfort_score(lon, lat, yaw, np.arange(len(xy)) * dt, mag) == 1.0
+
+
+def test_a_recorded_drive_that_is_comfortable_replays_comfortably(real_suite, scored):
+    """For every real-data scene and 5 s window whose LOGGED path passes
+    nuPlan's comfort bounds, ``log_replay`` scores ``ego_is_comfortable`` 1
+    under ``--preset nuplan``, but one (below): the replay's tracking adds
+    no discomfort of its own.
+
+    The replay aims at the logged position 0.5 s ahead every step
+    (``SimConfig.log_horizon_s``). When it matched the next logged position
+    one 0.1 s step at a time (``dynamics.inverse`` on the next sample), two
+    comfortable recordings failed through the replay: AV2 0a1e's second 5 s
+    window (its replay caught up with the logged speed at full throttle,
+    3.27 > 2.40 m/s^2) and nuScenes 0061's first window (the positions' 10 Hz
+    jitter reproduced step by step, lon acc -5.9..+4.4 m/s^2). The other
+    failures are the recordings' own (AV2 0a1e's first and last second,
+    nuScenes 0103's 0.4 m jump back at t = 19.3 s, nuScenes 0061's jitter,
+    NGSIM's video-tracking noise; experiments/comfort/diagnose.py prints every
+    signal)."""
+    packed = real_suite.pack(None)
+    index = {str(sid): i for i, sid in enumerate(packed.meta.scenario_id)}
+    rows = scored("nuplan").rows
+    log_ok = {r["scenario_id"] for r in rows if _logged_path_is_comfortable(packed.scenario, index[r["scenario_id"]])}
+    replay_ok = {r["scenario_id"] for r in rows if r["nuplan_ego_is_comfortable"] == 1.0}
+    # The check has something to check: the comfortable recordings of the samples (the AV2 sensor log
+    # adcf7d18 and its third window, AV2 0a1e's second window, nuScenes 0061's first window).
+    assert len(log_ok) >= 4, sorted(log_ok)
+    # One is left, and it is the replay's start, not its tracking: AV2 0a1e's second window starts
+    # from the logged velocity, below the speed its positions move at, and catches up.
+    assert log_ok - replay_ok <= {"av2_0a1e6f0a-1817-4a98-b02e-db8c9327d151_w01"}, sorted(log_ok - replay_ok)
+    assert "nuscenes_scene-0061_w00" in replay_ok  # failed on the copied 10 Hz jitter before
 
 
 def test_log_replay_among_idm_agents_fails_only_where_a_vehicle_yielded(real_suite):

@@ -22,6 +22,14 @@ log replayed, nothing else) differs from the stored one; the other policies
 are compared on the rest, and more than 10 % of such scenarios fails the
 test (a replay regression looks the same). On that machine 5 of the 200
 differ. ``test_golden_suite_check`` checks the route comparison.
+
+Regenerating (only for a deliberate change, in a commit named "golden: ..."
+that lists every move and its reason): run the bench above into a folder,
+then ``python -m tests.eval.test_golden RESULTS_DIR POLICY [POLICY ...] --why
+"TEXT"`` replaces the stored rows and events of the named policies only (the
+others keep the rows recorded where they were, and so does every scenario
+generated differently here: its route, or the row of a policy not named,
+differs from the stored one) and appends TEXT to ``about``.
 """
 
 from __future__ import annotations
@@ -115,3 +123,39 @@ def test_reference_policies_reproduce_the_stored_twin15_val_results(tmp_path):
             if sid not in other:
                 problems += [f"{name} {sid} {d}" for d in _diff_events(events, got["events"][sid])]
     assert not problems, f"{len(problems)} differences, first: " + "; ".join(problems[:10])
+
+
+def regenerate(results: Path, policies: list[str], why: str) -> None:
+    """Replace the stored rows and events of ``policies`` with those of the
+    bench folder ``results`` (see the module docstring)."""
+    data = json.loads(gzip.decompress(GOLDEN.read_bytes()))
+    # A scenario generated differently on this CPU (its route, or a policy left as it was, differs
+    # from the stored rows) keeps its stored rows: the test recognises such scenarios by them.
+    keep = set()
+    for name in POLICIES:
+        got = json.loads((results / "policies" / f"{name}.json").read_text())
+        here = {r["scenario_id"]: r["route_length_m"] for r in got["rows"]}
+        keep |= {d.split(" ")[0] for d in suite_differences(data["policies"][name]["rows"], here)}
+        if name not in policies:
+            keep |= {w["scenario_id"] for w, g in zip(data["policies"][name]["rows"], got["rows"])
+                     if _diff_row(w, g, new_columns_ok=True)}
+    for name in policies:
+        got = json.loads((results / "policies" / f"{name}.json").read_text())
+        stored = data["policies"][name]
+        old_rows = {r["scenario_id"]: r for r in stored["rows"]}
+        rows = [old_rows[r["scenario_id"]] if r["scenario_id"] in keep else r for r in got["rows"]]
+        events = {sid: stored["events"][sid] if sid in keep else ev for sid, ev in got["events"].items()}
+        data["policies"][name] = {"events": events, "rows": rows}
+    data["about"] += f" {why}"
+    GOLDEN.write_bytes(gzip.compress(json.dumps(data, sort_keys=True, separators=(",", ":")).encode(), mtime=0))
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(description="Replace stored golden rows of some policies (a deliberate change).")
+    ap.add_argument("results", type=Path)
+    ap.add_argument("policies", nargs="+", choices=POLICIES)
+    ap.add_argument("--why", required=True, help="appended to the file's 'about': which commit moved them, and why")
+    a = ap.parse_args()
+    regenerate(a.results, a.policies, a.why)
