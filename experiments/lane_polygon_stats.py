@@ -25,7 +25,8 @@ def stats(name: str) -> None:
         shp = [Polygon(p) for p in polys]
         inside = [np.mean([s.buffer(1e-3).contains(Point(q)) for q in ln.centerline]) for s, ln in zip(shp, m.lanes)]
         nv = [len(p) for p in polys]
-        line = (f"{name} map {mid}: lanes {len(m.lanes)}, from boundaries {src.count('boundaries')}, "
+        line = (f"{name} map {mid}: lanes {len(m.lanes)}, own polygon {src.count('polygon')}, "
+                f"from boundaries {src.count('boundaries')}, "
                 f"centreline {src.count('centerline')}, valid {sum(s.is_valid for s in shp)}, "
                 f"vertices max {max(nv)} mean {np.mean(nv):.1f}, centreline points inside own polygon "
                 f"{100 * np.mean(inside):.2f} %")

@@ -37,8 +37,12 @@ DIRECTION_WINDOW_S = 1.0
 
 
 def lane_polygon(lane) -> Polygon:
-    """A lane's area: left boundary + reversed right boundary where the record
-    has both, else the centreline buffered by width / 2 with flat ends."""
+    """A lane's area: its own ring where the record has one; left boundary +
+    reversed right boundary where it has both, else the centreline buffered by
+    width / 2 with flat ends."""
+    own = getattr(lane, "polygon", None)
+    if own is not None and len(own) >= 3:
+        return shapely.make_valid(Polygon(np.asarray(own, float)[:, :2]))
     left, right = getattr(lane, "left_boundary", None), getattr(lane, "right_boundary", None)
     if left is not None and right is not None and len(left) >= 2 and len(right) >= 2:
         ring = np.concatenate([np.asarray(left, float), np.asarray(right, float)[::-1]])
