@@ -38,7 +38,7 @@ def main() -> None:
                 e, w, m = leg.entries[info.index], leg.spec.lane_width, leg.spec.median
                 d0, d1 = leg.d_stop, leg.d_split
                 if e.kind == "left_pocket":
-                    inner = leg_line(leg, d0, d1, lambda d, leg=leg: m / 2 + w * (1 - taper_weight(d - leg.d_stop)))
+                    inner = leg_line(leg, d0, d1, lambda d, leg=leg, m=m, w=w: m / 2 + w * (1 - taper_weight(d - leg.d_stop)))
                     outer = leg_line(leg, d0, d1, m / 2 + w)
                 else:  # right pocket: between the last through lane's edge and the tapering kerb
                     inner = leg_line(leg, d0, d1, e.offset - e.width / 2)

@@ -53,9 +53,14 @@ TTC   ego and the observed future agents at +0,    ego AND agents projected at c
       0.3, 0.6, 0.9 s; a track first met not        (tick needs only the current state); static
       ahead is ignored for the rest of the          map obstacles are not tested; the "ignore
       proposal                                     once met not ahead" memory is per tick
-LK    distance of centre to the route centreline   facts.lane_offset (nearest aligned lane
-      > 0.5 m for ceil(2 s / 0.1 s) consecutive    centre) for ceil(2 s / dt) consecutive active
-      non-intersection states                      steps; junction (connector) steps skipped
+LK    distance of centre to the PDM centreline     distance of the centre to the centreline of
+      (the route lane chain from the on-route      the lane whose polygon holds it (lowest
+      lane holding the ego at t0, lowest heading   heading error; none: the nearest lane's),
+      error) > 0.5 m for ceil(2 s / 0.1 s)         ``NavsimTick.lane_offset``, > 0.5 m for
+      consecutive states outside INTERSECTION      ceil(2 s / dt) consecutive active steps;
+                                                   connector (junction) steps skipped; no
+                                                   route lane ids are packed, so a finished
+                                                   lane change is not a deviation here
 HC    comfort bounds on 1.5 s human history +       bounds on the executed steps (no history
       the 4 s proposal (states from the LQR sim;   padding); the bicycle-model state as C reads
       lon / lat: centre acceleration from           it (``nuplan.ego_comfort_inputs``): lon =
@@ -161,11 +166,32 @@ class NavsimTick:
                      INTERSECTION layer; used by DDC and LK).
       oncoming:      bool, the ego centre lies in no lane running its way
                      (NAVSIM's ONCOMING_TRAFFIC ego area, used by DDC).
+      lane_offset:   m, LK's lateral deviation: the distance of the ego centre
+                     to the centreline of the lane holding it (``lk_offset``).
     """
 
     ttc_violation: jnp.ndarray
     in_junction: jnp.ndarray
     oncoming: jnp.ndarray
+    lane_offset: jnp.ndarray
+
+
+def lk_offset(centre_in, tangent, centre_offset, yaw):
+    """LK's lateral deviation, m: the distance of the ego centre to the
+    centreline of the lane that holds it (NAVSIM: to the PDM centreline, the
+    route lane chain from the on-route lane holding the ego with the lowest
+    heading error; ``AbstractPDMPlanner._get_starting_lane``).
+
+    Of the lanes whose polygon holds the centre (``centre_in``), the one whose
+    direction at the centre (``tangent``) is closest to the ego heading
+    ``yaw``; when none holds it, the nearest tested lane's centreline (then
+    the centre is outside every lane, at least half a lane width from any
+    centreline in a map whose lanes tile the road). All (M,) arrays of
+    ``infractions.EgoLanes``; inf when no lane was tested.
+    """
+    align = tangent @ jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
+    best = jnp.argmax(jnp.where(centre_in, align, -jnp.inf))
+    return jnp.where(jnp.any(centre_in), centre_offset[best], jnp.min(centre_offset))
 
 
 def ttc_violation(ego: EgoState, ego_lw, a_xy, a_yaw, a_vel, a_lw, a_ok, lax_zone, wheelbase: float):
@@ -223,6 +249,8 @@ def tick(
     multi_lane=False,
     off_drivable=False,
     wheelbase: float = BicycleParams().wheelbase,
+    *,
+    centre_offset,
 ) -> NavsimTick:
     """NAVSIM facts of one tick, one scenario.
 
@@ -238,6 +266,7 @@ def tick(
       multi_lane, off_drivable: () bool this tick's ``StepFacts.multi_lane``
         and ``StepFacts.drivable_excess_m > 0`` (TTC's lax zone).
       wheelbase: m.
+      centre_offset: (M,) m ``EgoLanes.centre_offset`` (LK's ``lk_offset``).
     """
     aligned = tangent @ jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)]) > math.cos(ONCOMING_ALIGN_MAX)
     junction = jnp.any(centre_in & connector)
@@ -253,7 +282,8 @@ def tick(
         lax_zone,
         wheelbase,
     )
-    return NavsimTick(ttc_violation=ttc, in_junction=junction, oncoming=~jnp.any(centre_in & aligned))
+    return NavsimTick(ttc_violation=ttc, in_junction=junction, oncoming=~jnp.any(centre_in & aligned),
+                      lane_offset=lk_offset(centre_in, tangent, centre_offset, ego.yaw))
 
 
 # =============================================================================
@@ -502,7 +532,7 @@ def _sub_metrics(log: Any, scenario: Any, dt: float, plans, plan_dt: float, ref_
         ),
         "tlc": 0.0 if np.any(active & np.asarray(f.red_light, bool)) else 1.0,
         "ttc": 0.0 if np.any(active & np.asarray(nv.ttc_violation, bool)) else 1.0,
-        "lk": lane_keeping(active, np.asarray(f.lane_offset, np.float64), np.asarray(nv.in_junction, bool), dt),
+        "lk": lane_keeping(active, np.asarray(nv.lane_offset, np.float64), np.asarray(nv.in_junction, bool), dt),
         "hc": history_comfort(lon_acc, lat_acc, np.asarray(log.yaw, np.float64)[idx], dt, acc_mag),
     }
     mult = out["nc"] * out["dac"] * out["ddc"] * out["tlc"]
