@@ -110,6 +110,8 @@ TTC_TIMES_S = (0.0, 0.3, 0.6, 0.9)
 EP_MIN_PROGRESS_M = 5.0  # m, progress_distance_threshold
 LK_DEVIATION_M = 0.5  # m, lane_keeping_deviation_limit
 LK_WINDOW_S = 2.0  # s, lane_keeping_horizon_window
+#: LK deviation logged when no lane is near the ego at all (m; any value > LK_DEVIATION_M fails alike).
+LK_NO_LANE_M = 1000.0
 #: ``get_collision_type`` (U) ego stopped threshold; a static object is a stopped track.
 COLLISION_STOPPED_SPEED = 5e-2  # m/s
 NC_AGENT = 0.0  # at-fault collision with an AGENT_TYPES track (vehicle, pedestrian, bicycle)
@@ -187,11 +189,13 @@ def lk_offset(centre_in, tangent, centre_offset, yaw):
     ``yaw``; when none holds it, the nearest tested lane's centreline (then
     the centre is outside every lane, at least half a lane width from any
     centreline in a map whose lanes tile the road). All (M,) arrays of
-    ``infractions.EgoLanes``; inf when no lane was tested.
+    ``infractions.EgoLanes``; ``LK_NO_LANE_M`` when no lane was tested (kept
+    finite for the logs; any value > 0.5 m is a deviation).
     """
     align = tangent @ jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
     best = jnp.argmax(jnp.where(centre_in, align, -jnp.inf))
-    return jnp.where(jnp.any(centre_in), centre_offset[best], jnp.min(centre_offset))
+    off = jnp.where(jnp.any(centre_in), centre_offset[best], jnp.min(centre_offset))
+    return jnp.minimum(off, LK_NO_LANE_M)
 
 
 def ttc_violation(ego: EgoState, ego_lw, a_xy, a_yaw, a_vel, a_lw, a_ok, lax_zone, wheelbase: float):
