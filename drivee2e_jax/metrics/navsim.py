@@ -112,6 +112,9 @@ LK_DEVIATION_M = 0.5  # m, lane_keeping_deviation_limit
 LK_WINDOW_S = 2.0  # s, lane_keeping_horizon_window
 #: LK deviation logged when no lane is near the ego at all (m; any value > LK_DEVIATION_M fails alike).
 LK_NO_LANE_M = 1000.0
+#: Lanes holding the ego whose direction cosine to its heading is within this of the best one are
+#: equally aligned (1e-3: about 2.6 deg off parallel); LK takes the nearest centreline among them.
+LK_ALIGN_TIE = 1e-3
 #: ``get_collision_type`` (U) ego stopped threshold; a static object is a stopped track.
 COLLISION_STOPPED_SPEED = 5e-2  # m/s
 NC_AGENT = 0.0  # at-fault collision with an AGENT_TYPES track (vehicle, pedestrian, bicycle)
@@ -186,15 +189,19 @@ def lk_offset(centre_in, tangent, centre_offset, yaw):
 
     Of the lanes whose polygon holds the centre (``centre_in``), the one whose
     direction at the centre (``tangent``) is closest to the ego heading
-    ``yaw``; when none holds it, the nearest tested lane's centreline (then
+    ``yaw``; lanes aligned within ``LK_ALIGN_TIE`` of the best are a tie (NAVSIM
+    takes the first in its map order, which a packed map does not keep), broken
+    by the smaller offset: a nuScenes lane polygon can reach 9 m beside its own
+    short centreline, parallel to the lane the ego drives in. When no lane
+    holds the centre, the nearest tested lane's centreline (then
     the centre is outside every lane, at least half a lane width from any
     centreline in a map whose lanes tile the road). All (M,) arrays of
     ``infractions.EgoLanes``; ``LK_NO_LANE_M`` when no lane was tested (kept
     finite for the logs; any value > 0.5 m is a deviation).
     """
-    align = tangent @ jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
-    best = jnp.argmax(jnp.where(centre_in, align, -jnp.inf))
-    off = jnp.where(jnp.any(centre_in), centre_offset[best], jnp.min(centre_offset))
+    align = jnp.where(centre_in, tangent @ jnp.stack([jnp.cos(yaw), jnp.sin(yaw)]), -jnp.inf)
+    tied = centre_in & (align >= jnp.max(align) - LK_ALIGN_TIE)
+    off = jnp.where(jnp.any(centre_in), jnp.min(jnp.where(tied, centre_offset, jnp.inf)), jnp.min(centre_offset))
     return jnp.minimum(off, LK_NO_LANE_M)
 
 

@@ -126,12 +126,16 @@ LK_DEVIATION_M = 0.5
 LK_WINDOW_S = 2.0
 #: Per-instant agreement of the LK deviation, m (float32 nearest segment against shapely).
 LK_TOL_M = 0.01
+#: NAVSIM takes the first of equally aligned lanes in its map order; both sides here take
+#: the nearest centreline among lanes whose direction cosine is within this of the best.
+LK_ALIGN_TIE = 1e-3
 
 
 def lk_deviation(xy, yaw, lanes: list, lines: list, connector: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per point of ``xy`` (n, 2): the centre's distance to the centreline of
     the lane polygon holding it with the lowest heading error (NAVSIM's
-    starting-lane rule; ``Point.distance(linestring)``), else to the nearest
+    starting-lane rule; ``Point.distance(linestring)``; ties within
+    ``LK_ALIGN_TIE``: the nearest of them), else to the nearest
     centreline; whether a holding lane exists; whether a connector holds it
     (NAVSIM's INTERSECTION layer, skipped by LK). Returns three (n,) arrays."""
     xy, yaw = np.asarray(xy, float), np.asarray(yaw, float)
@@ -139,7 +143,7 @@ def lk_deviation(xy, yaw, lanes: list, lines: list, connector: list) -> tuple[np
     for k in range(len(xy)):
         p = Point(xy[k])
         heading = np.array([np.cos(yaw[k]), np.sin(yaw[k])])
-        best, best_align = None, -np.inf
+        holding = []  # (alignment, distance)
         for lp, line, conn in zip(lanes, lines, connector):
             if not lp.covers(p):
                 continue
@@ -147,11 +151,13 @@ def lk_deviation(xy, yaw, lanes: list, lines: list, connector: list) -> tuple[np
             s = line.project(p)
             a, b = line.interpolate(max(s - 0.05, 0.0)), line.interpolate(min(s + 0.05, line.length))
             t = np.array([b.x - a.x, b.y - a.y])
-            align = float(t @ heading) / max(np.linalg.norm(t), 1e-9)
-            if align > best_align:
-                best, best_align = line, align
-        held[k] = best is not None
-        dev[k] = p.distance(best) if best is not None else min((ln.distance(p) for ln in lines), default=np.inf)
+            holding.append((float(t @ heading) / max(np.linalg.norm(t), 1e-9), p.distance(line)))
+        held[k] = bool(holding)
+        if holding:  # equally aligned lanes (within LK_ALIGN_TIE): the nearest centreline
+            best = max(al for al, _ in holding)
+            dev[k] = min(d for al, d in holding if al >= best - LK_ALIGN_TIE)
+        else:
+            dev[k] = min((ln.distance(p) for ln in lines), default=np.inf)
     return dev, held, junction
 
 

@@ -261,6 +261,22 @@ def test_lk_offset_picks_the_holding_lane_with_the_lowest_heading_error():
     assert _lk_offset(_ego(6.0, 1.5, yaw=yaw_c), [a, c]) == pytest.approx(0.9 * math.cos(yaw_c), abs=1e-5)
 
 
+def test_lk_offset_equally_aligned_lanes_take_the_nearest_centreline():
+    # A wide lane (10 m, centreline y = 3) listed first and a 3.5 m lane at y = 0,
+    # both holding (5, 0.5) and both parallel to the ego: a tie, not the first
+    # listed (2.5 m) but the nearest centreline, 0.5 m (nuScenes scene-0103: a
+    # lane polygon reaching 9 m beside its own short centreline).
+    x = np.arange(-10.0, 41.0, 2.0)
+    wide = np.stack([x, np.full_like(x, 3.0)], -1)
+    a = np.stack([x, np.zeros_like(x)], -1)
+    lmap = lane_helpers.lane_map([wide, a], widths=[10.0, 3.5])
+    ego = _ego(5.0, 0.5)
+    el = lane_helpers.ego_lanes(ego, LW, lmap)
+    assert int(np.sum(np.asarray(el.centre_in))) == 2
+    got = navsim.lk_offset(el.centre_in, el.tangent, el.centre_offset, ego.yaw)
+    assert float(got) == pytest.approx(0.5, abs=1e-5)
+
+
 def test_lk_reads_the_navsim_lane_offset_not_the_strip_offset():
     sc = straight_scenario()
     n = 40

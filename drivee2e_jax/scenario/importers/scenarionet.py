@@ -30,7 +30,8 @@ Conversion:
   ``polygon``, where the source has one, as the lane's area
   (``LaneRecord.polygon``: nuScenes lanes and nuPlan lanes and connectors
   carry it; nuScenes lane connectors do not, and a self-intersecting one is
-  dropped with a note), width = polygon area / centreline length, clipped to
+  dropped with a note); LANE_SURFACE_UNSTRUCTURE, and in a nuScenes
+  conversion a lane without a polygon, is a junction ``connector``; width = polygon area / centreline length, clipped to
   2-6 m, else 3.5 m, which the lanes without a polygon use as centreline ±
   width/2; successors inferred from geometry when the source has no
   ``exit_lanes``), ``ROAD_LINE_*`` ->
@@ -308,8 +309,10 @@ LINE_MARKINGS = {
     "ROAD_LINE_UNKNOWN": "none", "ROAD_EDGE_BOUNDARY": "road_edge", "ROAD_EDGE_MEDIAN": "road_edge",
     "ROAD_EDGE_UNKNOWN": "road_edge", "ROAD_EDGE_SIDEWALK": "road_edge",
 }
+#: LANE_SURFACE_UNSTRUCTURE is what the nuScenes and nuPlan conversions write for junction
+#: connectors (nuScenes lane_connector, nuPlan ROADBLOCK_CONNECTOR lanes): NAVSIM's INTERSECTION.
 LANE_KINDS = {"LANE_SURFACE_STREET": "driving", "LANE_FREEWAY": "driving", "LANE_UNKNOWN": "driving",
-              "LANE_SURFACE_UNSTRUCTURE": "driving", "LANE_BIKE_LANE": "bike"}
+              "LANE_SURFACE_UNSTRUCTURE": "connector", "LANE_BIKE_LANE": "bike"}
 #: nuScenes ego: box centre ahead of the rear-axle pose, m (approximate).
 EGO_CENTER_OFFSET_M = 1.3
 MAP_RADIUS_M = 100.0
@@ -367,7 +370,11 @@ def _polygon_area(p: np.ndarray) -> float:
     return 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
 
 
-def _map(features: dict, map_id: str, source: str, notes: list[str]) -> MapRecord:
+def _map(features: dict, map_id: str, source: str, notes: list[str], dataset: str = "") -> MapRecord:
+    """The map features as a MapRecord. ``dataset`` "nuscenes": a lane without a
+    polygon is a lane connector (ScenarioNet's nuScenes converter writes every
+    lane's polygon and no connector's; before its commit 69a3d7a it typed both
+    LANE_SURFACE_STREET)."""
     lanes, boundaries, crosswalks, other = [], [], [], {}
     has_links, bad_polygons = False, 0
     for i, (fid, feat) in enumerate(sorted(features.items(), key=lambda x: str(x[0]))):
@@ -387,7 +394,10 @@ def _map(features: dict, map_id: str, source: str, notes: list[str]) -> MapRecor
                     poly = None
             succ = [int(s) for s in feat.get("exit_lanes", []) if str(s).lstrip("-").isdigit()]
             has_links |= bool(succ)
-            lanes.append(LaneRecord(id=i, centerline=c, width=width, type=LANE_KINDS[typ], successors=succ,
+            kind = LANE_KINDS[typ]
+            if dataset == "nuscenes" and kind == "driving" and feat.get("polygon") is None:
+                kind = "connector"
+            lanes.append(LaneRecord(id=i, centerline=c, width=width, type=kind, successors=succ,
                                     left_marking="none", right_marking="none", polygon=poly))
         elif typ in LINE_MARKINGS:
             p = _array(_get(feat, "polyline", where, None), f"{where}.polyline", 2)[:, :2]
@@ -535,7 +545,7 @@ def _one(path: Path, options: ImportOptions, limit: int | None) -> ImportResult:
     ego = next((tr for tr in conv.tracks if tr.track_id == conv.ids[ego_src]), None)
     if ego is None:
         raise DriveE2EError(f"{path}: the ego track {ego_src!r} has no samples on the grid")
-    full = _map(features, common.safe_id(f"{label}_map"), src, notes)
+    full = _map(features, common.safe_id(f"{label}_map"), src, notes, dataset)
     full.obstacles = obstacles
     map_rec = common.crop_map(full, ego.xy, MAP_RADIUS_M)
     if conv.gap_tracks:

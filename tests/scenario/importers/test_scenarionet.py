@@ -65,6 +65,14 @@ def test_lane_polygon_is_the_lane_area_and_a_bad_one_falls_back(tmp_path):
     assert any("1 lane polygon(s) self-intersect or have no area" in n for n in r.notes)
 
 
+def test_unstructured_lane_surface_is_a_connector(tmp_path):
+    """ScenarioNet's nuScenes / nuPlan converters write junction connectors as LANE_SURFACE_UNSTRUCTURE."""
+    d = scenario_dict()
+    d["map_features"]["lane_a"]["type"] = "LANE_SURFACE_UNSTRUCTURE"
+    r = load("scenarionet", [write_pkl(tmp_path / "sd_conn.pkl", d)], ImportOptions())
+    assert [ln.type for ln in r.maps[r.scenarios[0].map_id].lanes] == ["connector"]
+
+
 def test_zero_or_tiny_sizes_become_the_category_default(tmp_path):
     """Some conversions write 0 for an unknown size: such a box would never collide."""
     d = scenario_dict()
@@ -307,6 +315,8 @@ def test_shared_nuscenes_samples_import():
         for ln in m.lanes:
             f = feats[tuple(np.round(ln.centerline[0], 6))]
             assert lane_polygon_source(ln) == ("polygon" if "polygon" in f else "centerline")
+            # this (pre-69a3d7a) conversion types connectors LANE_SURFACE_STREET: no polygon = a connector
+            assert ln.type == ("driving" if "polygon" in f else "connector")
             if "polygon" in f:
                 assert Polygon(lane_polygon(ln)).equals(Polygon(np.asarray(f["polygon"])[:, :2]))
         assert {lane_polygon_source(ln) for ln in m.lanes} == {"polygon", "centerline"}
