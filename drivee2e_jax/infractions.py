@@ -358,6 +358,9 @@ class EgoLanes:
       rear_in:    (M,) bool the ego's rear axle does.
       tangent:    (M, 2) unit driving direction of lane ``rows[m]`` at the
                   ego centre (its centreline's nearest segment).
+      centre_offset: (M,) m distance of the ego centre to lane ``rows[m]``'s
+                  centreline polyline (``geometry.nearest_segment``; inf for
+                  a padded row). NAVSIM's lane-keeping deviation.
       connector:  (M,) bool lane ``rows[m]`` is a junction CONNECTOR.
       rows:       (M,) int32 the lanes tested (-1 padded).
       overflow:   () bool more lanes could hold the ego than were tested.
@@ -370,6 +373,7 @@ class EgoLanes:
     connector: jnp.ndarray
     rows: jnp.ndarray
     overflow: jnp.ndarray
+    centre_offset: jnp.ndarray
 
 
 def ego_lanes(ego: EgoState, ego_lw, rear_offset, index: LaneIndex, map_data: MapData) -> EgoLanes:
@@ -397,8 +401,8 @@ def ego_lanes(ego: EgoState, ego_lw, rear_offset, index: LaneIndex, map_data: Ma
     in_axis = points_in_lanes(jnp.stack([ego.xy, ego.xy - rear_offset * fwd]), rows, index)  # (2, M)
     safe = jnp.maximum(rows, 0)
     lanes = map_data.lanes
-    _, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lanes.xy[safe],
-                                                                         lanes.point_valid[safe])
+    dist, heading = jax.vmap(geometry.nearest_segment, in_axes=(None, 0, 0))(ego.xy, lanes.xy[safe],
+                                                                            lanes.point_valid[safe])
     return EgoLanes(
         multi_lane=~jnp.any(held),
         centre_in=in_axis[0],
@@ -407,6 +411,7 @@ def ego_lanes(ego: EgoState, ego_lw, rear_offset, index: LaneIndex, map_data: Ma
         connector=(map_data.lane_type[safe] == LaneType.CONNECTOR) & (rows >= 0),
         rows=rows,
         overflow=overflow | full_over,
+        centre_offset=jnp.where(rows >= 0, dist, jnp.inf),
     )
 
 

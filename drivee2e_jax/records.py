@@ -49,6 +49,10 @@ class LaneRecord:
     # When both are present they define the lane's area polygon (scenario/lane_polygons.py).
     left_boundary: np.ndarray | None = None
     right_boundary: np.ndarray | None = None
+    # Optional lane area as the source draws it, (n >= 3, 2) float m, a simple ring in any
+    # orientation (nuScenes / nuPlan lane polygons via ScenarioNet). It takes precedence
+    # over the boundaries and the centreline fallback (scenario/lane_polygons.py).
+    polygon: np.ndarray | None = None
 
 
 @dataclass

@@ -534,7 +534,8 @@ class Simulator:
         if preset == "navsim":
             return facts.replace(navsim=navsim.tick(
                 ego, lw, agents, tr.size, near, near_ok, lanes.centre_in, lanes.rear_in, lanes.tangent,
-                lanes.connector, multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase))
+                lanes.connector, multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase,
+                centre_offset=lanes.centre_offset))
         # nuPlan looks sideways for TTC between lanes, off the drivable area and in the junction.
         wide = multi_lane | (excess > 0.0) | jnp.any(lanes.centre_in & lanes.connector)
         return facts.replace(nuplan=nuplan.tick(state.ego.xy, ego, lw, agents, tr.size, near, near_ok,

@@ -871,11 +871,17 @@ def _timeline(log, n: int, ego_speed: np.ndarray, rc0: float) -> dict:
     """Per-step metric timelines (T = n + 1; index 0 = the reset state)."""
     out = {"speed": ego_speed, "route_completion": np.concatenate([[rc0], np.asarray(log.route_completion[:n])])}
     for group, obj in (("facts", log.facts), ("events", log.events)):
-        for f in dataclasses.fields(obj):
-            v = np.asarray(getattr(obj, f.name))
+        fields = [(f"{group}.{f.name}", getattr(obj, f.name)) for f in dataclasses.fields(obj)]
+        # a preset's own per-tick facts (facts.navsim / facts.nuplan) one level down
+        fields += [(f"{name}.{g.name}", getattr(sub, g.name)) for name, sub in list(fields)
+                   if dataclasses.is_dataclass(sub) for g in dataclasses.fields(sub)]
+        for name, v in fields:
+            if dataclasses.is_dataclass(v) or v is None:
+                continue
+            v = np.asarray(v)
             if v.ndim != 1:  # per-stop-line arrays (red_light_lines) are not timelines
                 continue
-            out[f"{group}.{f.name}"] = np.concatenate([np.zeros(1, v.dtype), v[:n]])
+            out[name] = np.concatenate([np.zeros(1, v.dtype), v[:n]])
     return out
 
 

@@ -53,9 +53,14 @@ TTC   ego and the observed future agents at +0,    ego AND agents projected at c
       0.3, 0.6, 0.9 s; a track first met not        (tick needs only the current state); static
       ahead is ignored for the rest of the          map obstacles are not tested; the "ignore
       proposal                                     once met not ahead" memory is per tick
-LK    distance of centre to the route centreline   facts.lane_offset (nearest aligned lane
-      > 0.5 m for ceil(2 s / 0.1 s) consecutive    centre) for ceil(2 s / dt) consecutive active
-      non-intersection states                      steps; junction (connector) steps skipped
+LK    distance of centre to the PDM centreline     distance of the centre to the centreline of
+      (the route lane chain from the on-route      the lane whose polygon holds it (lowest
+      lane holding the ego at t0, lowest heading   heading error; none: the nearest lane's),
+      error) > 0.5 m for ceil(2 s / 0.1 s)         ``NavsimTick.lane_offset``, > 0.5 m for
+      consecutive states outside INTERSECTION      ceil(2 s / dt) consecutive active steps;
+                                                   connector (junction) steps skipped; no
+                                                   route lane ids are packed, so a finished
+                                                   lane change is not a deviation here
 HC    comfort bounds on 1.5 s human history +       bounds on the executed steps (no history
       the 4 s proposal (states from the LQR sim;   padding); the bicycle-model state as C reads
       lon / lat: centre acceleration from           it (``nuplan.ego_comfort_inputs``): lon =
@@ -105,6 +110,11 @@ TTC_TIMES_S = (0.0, 0.3, 0.6, 0.9)
 EP_MIN_PROGRESS_M = 5.0  # m, progress_distance_threshold
 LK_DEVIATION_M = 0.5  # m, lane_keeping_deviation_limit
 LK_WINDOW_S = 2.0  # s, lane_keeping_horizon_window
+#: LK deviation logged when no lane is near the ego at all (m; any value > LK_DEVIATION_M fails alike).
+LK_NO_LANE_M = 1000.0
+#: Lanes holding the ego whose direction cosine to its heading is within this of the best one are
+#: equally aligned (1e-3: about 2.6 deg off parallel); LK takes the nearest centreline among them.
+LK_ALIGN_TIE = 1e-3
 #: ``get_collision_type`` (U) ego stopped threshold; a static object is a stopped track.
 COLLISION_STOPPED_SPEED = 5e-2  # m/s
 NC_AGENT = 0.0  # at-fault collision with an AGENT_TYPES track (vehicle, pedestrian, bicycle)
@@ -161,11 +171,38 @@ class NavsimTick:
                      INTERSECTION layer; used by DDC and LK).
       oncoming:      bool, the ego centre lies in no lane running its way
                      (NAVSIM's ONCOMING_TRAFFIC ego area, used by DDC).
+      lane_offset:   m, LK's lateral deviation: the distance of the ego centre
+                     to the centreline of the lane holding it (``lk_offset``).
     """
 
     ttc_violation: jnp.ndarray
     in_junction: jnp.ndarray
     oncoming: jnp.ndarray
+    lane_offset: jnp.ndarray
+
+
+def lk_offset(centre_in, tangent, centre_offset, yaw):
+    """LK's lateral deviation, m: the distance of the ego centre to the
+    centreline of the lane that holds it (NAVSIM: to the PDM centreline, the
+    route lane chain from the on-route lane holding the ego with the lowest
+    heading error; ``AbstractPDMPlanner._get_starting_lane``).
+
+    Of the lanes whose polygon holds the centre (``centre_in``), the one whose
+    direction at the centre (``tangent``) is closest to the ego heading
+    ``yaw``; lanes aligned within ``LK_ALIGN_TIE`` of the best are a tie (NAVSIM
+    takes the first in its map order, which a packed map does not keep), broken
+    by the smaller offset: a nuScenes lane polygon can reach 9 m beside its own
+    short centreline, parallel to the lane the ego drives in. When no lane
+    holds the centre, the nearest tested lane's centreline (then
+    the centre is outside every lane, at least half a lane width from any
+    centreline in a map whose lanes tile the road). All (M,) arrays of
+    ``infractions.EgoLanes``; ``LK_NO_LANE_M`` when no lane was tested (kept
+    finite for the logs; any value > 0.5 m is a deviation).
+    """
+    align = jnp.where(centre_in, tangent @ jnp.stack([jnp.cos(yaw), jnp.sin(yaw)]), -jnp.inf)
+    tied = centre_in & (align >= jnp.max(align) - LK_ALIGN_TIE)
+    off = jnp.where(jnp.any(centre_in), jnp.min(jnp.where(tied, centre_offset, jnp.inf)), jnp.min(centre_offset))
+    return jnp.minimum(off, LK_NO_LANE_M)
 
 
 def ttc_violation(ego: EgoState, ego_lw, a_xy, a_yaw, a_vel, a_lw, a_ok, lax_zone, wheelbase: float):
@@ -223,6 +260,8 @@ def tick(
     multi_lane=False,
     off_drivable=False,
     wheelbase: float = BicycleParams().wheelbase,
+    *,
+    centre_offset,
 ) -> NavsimTick:
     """NAVSIM facts of one tick, one scenario.
 
@@ -238,6 +277,7 @@ def tick(
       multi_lane, off_drivable: () bool this tick's ``StepFacts.multi_lane``
         and ``StepFacts.drivable_excess_m > 0`` (TTC's lax zone).
       wheelbase: m.
+      centre_offset: (M,) m ``EgoLanes.centre_offset`` (LK's ``lk_offset``).
     """
     aligned = tangent @ jnp.stack([jnp.cos(ego.yaw), jnp.sin(ego.yaw)]) > math.cos(ONCOMING_ALIGN_MAX)
     junction = jnp.any(centre_in & connector)
@@ -253,7 +293,8 @@ def tick(
         lax_zone,
         wheelbase,
     )
-    return NavsimTick(ttc_violation=ttc, in_junction=junction, oncoming=~jnp.any(centre_in & aligned))
+    return NavsimTick(ttc_violation=ttc, in_junction=junction, oncoming=~jnp.any(centre_in & aligned),
+                      lane_offset=lk_offset(centre_in, tangent, centre_offset, ego.yaw))
 
 
 # =============================================================================
@@ -502,7 +543,7 @@ def _sub_metrics(log: Any, scenario: Any, dt: float, plans, plan_dt: float, ref_
         ),
         "tlc": 0.0 if np.any(active & np.asarray(f.red_light, bool)) else 1.0,
         "ttc": 0.0 if np.any(active & np.asarray(nv.ttc_violation, bool)) else 1.0,
-        "lk": lane_keeping(active, np.asarray(f.lane_offset, np.float64), np.asarray(nv.in_junction, bool), dt),
+        "lk": lane_keeping(active, np.asarray(nv.lane_offset, np.float64), np.asarray(nv.in_junction, bool), dt),
         "hc": history_comfort(lon_acc, lat_acc, np.asarray(log.yaw, np.float64)[idx], dt, acc_mag),
     }
     mult = out["nc"] * out["dac"] * out["ddc"] * out["tlc"]

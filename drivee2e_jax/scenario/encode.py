@@ -83,6 +83,8 @@ def _lane_obj(ln) -> dict:
         obj["left_boundary"] = np.asarray(ln.left_boundary)
     if ln.right_boundary is not None:
         obj["right_boundary"] = np.asarray(ln.right_boundary)
+    if ln.polygon is not None:
+        obj["polygon"] = np.asarray(ln.polygon)
     return obj
 
 

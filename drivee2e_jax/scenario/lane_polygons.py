@@ -2,6 +2,9 @@
 
 A lane's area is a simple, counter-clockwise polygon (V, 2) in metres:
 
+* ``"polygon"``: when the lane carries its own area ring (``LaneRecord.polygon``:
+  nuScenes / nuPlan lane polygons through ScenarioNet), that ring, used exactly
+  as given (closing point dropped, orientation made counter-clockwise);
 * ``"boundaries"``: when the lane carries both ``left_boundary`` and
   ``right_boundary`` (polylines in the driving direction, left = left of
   travel), the polygon is the right boundary followed by the reversed left
@@ -70,7 +73,10 @@ def offset_polyline(line: np.ndarray, offset: float) -> np.ndarray:
 
 
 def lane_polygon_source(lane: LaneRecord) -> str:
-    """``"boundaries"`` if the lane has both boundary polylines, else ``"centerline"``."""
+    """``"polygon"`` if the lane has its own area ring, ``"boundaries"`` if it has both
+    boundary polylines, else ``"centerline"``."""
+    if lane.polygon is not None and len(lane.polygon) >= 3:
+        return "polygon"
     if (lane.left_boundary is not None and lane.right_boundary is not None
             and len(lane.left_boundary) >= 2 and len(lane.right_boundary) >= 2):
         return "boundaries"
@@ -80,11 +86,18 @@ def lane_polygon_source(lane: LaneRecord) -> str:
 def lane_polygon(lane: LaneRecord) -> np.ndarray:
     """The lane's area as a simple counter-clockwise polygon (V, 2), m, open ring.
 
-    From the boundaries when both are present (right boundary, then the left one
-    reversed), else the centreline offset by ± width/2 (see ``offset_polyline``).
-    The orientation is normalised to counter-clockwise by the shoelace sign.
+    The lane's own ring when it has one, else from the boundaries when both are
+    present (right boundary, then the left one reversed), else the centreline
+    offset by ± width/2 (see ``offset_polyline``). The orientation is normalised
+    to counter-clockwise by the shoelace sign.
     """
-    if lane_polygon_source(lane) == "boundaries":
+    source = lane_polygon_source(lane)
+    if source == "polygon":
+        ring = _dedupe(np.asarray(lane.polygon, np.float64)[:, :2])
+        if len(ring) > 1 and np.allclose(ring[0], ring[-1]):
+            ring = ring[:-1]
+        return ring if signed_area(ring) >= 0 else ring[::-1]
+    if source == "boundaries":
         left = _dedupe(lane.left_boundary)
         right = _dedupe(lane.right_boundary)
     else:
@@ -130,14 +143,15 @@ def map_notes(m) -> list[str]:
     * some but not all lanes have boundaries: the ids of the fallback lanes.
     """
     src = [lane_polygon_source(ln) for ln in m.lanes]
-    nb, nc = src.count("boundaries"), src.count("centerline")
+    npg, nb, nc = src.count("polygon"), src.count("boundaries"), src.count("centerline")
     out = []
     if not m.drivable_areas:
+        own = f"{npg} the lane's own polygon, " if npg else ""
         out.append(f"map {m.map_id}: no drivable_areas; drivable-area compliance uses the union of its lane "
-                   f"polygons ({nb} from boundaries, {nc} from centreline ± width/2)")
-    if nb and nc:
+                   f"polygons ({own}{nb} from boundaries, {nc} from centreline ± width/2)")
+    if (nb or npg) and nc:
         ids = [ln.id for ln, s in zip(m.lanes, src) if s == "centerline"]
         shown = ", ".join(str(i) for i in ids[:10]) + (f", ... ({len(ids)} in all)" if len(ids) > 10 else "")
-        out.append(f"map {m.map_id}: lanes {shown} have no left/right_boundary; their polygons are the "
-                   f"centreline ± width/2")
+        out.append(f"map {m.map_id}: lanes {shown} have no polygon nor left/right_boundary; their polygons are "
+                   f"the centreline ± width/2")
     return out

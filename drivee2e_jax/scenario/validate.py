@@ -13,6 +13,8 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
+from shapely.geometry import Polygon
+from shapely.validation import explain_validity
 
 from drivee2e_jax.records import (
     BEHAVIORS,
@@ -84,8 +86,16 @@ _MAP_OPT = ("schema_version", "boundaries", "crosswalks", "stop_lines", "drivabl
             "obstacles", "signal_plan", "meta")
 _LANE_REQ = ("id", "centerline")
 _LANE_OPT = ("width", "speed_limit", "type", "successors", "left_marking", "right_marking",
-             "left_boundary", "right_boundary")
+             "left_boundary", "right_boundary", "polygon")
 _SIGNAL_TEXT = "a signal state index: " + ", ".join(f"{i}={n}" for i, n in enumerate(SIGNAL_STATES))
+
+
+def _ring_problem(ring: np.ndarray) -> str:
+    """Why ``ring`` (n, 2) m is not a simple polygon with area ('' when it is), in a few words."""
+    shp = Polygon(ring)
+    if shp.area <= 0.0:
+        return "zero area"
+    return "" if shp.is_valid else " ".join(explain_validity(shp).split())[:80]
 
 
 def _check_schema_version(c: Checker, obj: dict) -> None:
@@ -315,6 +325,11 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
               if "left_boundary" in lobj else None)
         rb = (c.array(lobj["right_boundary"], join_path(p, "right_boundary"), cols=2, min_len=2, position=True)
               if "right_boundary" in lobj else None)
+        lp = (c.array(lobj["polygon"], join_path(p, "polygon"), cols=2, min_len=3)
+              if "polygon" in lobj else None)
+        if lp is not None and (why := _ring_problem(lp)):
+            c.add(join_path(p, "polygon"), "a simple ring (the lane's area, >= 3 distinct points, no "
+                  "self-intersection)", why)
         if lid is not None and lid in lane_ids:
             c.add(join_path(p, "id"), "a unique lane id", f"{lid} (also lanes[{lane_ids[lid]}])")
             continue
@@ -325,7 +340,7 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
         successor_refs += [(f"{p}.successors[{j}]", int(s)) for j, s in enumerate(succ)]
         lanes.append(LaneRecord(id=lid, centerline=cl, width=width, speed_limit=speed, type=ltype,
                                 successors=[int(s) for s in succ], left_marking=left, right_marking=right,
-                                left_boundary=lb, right_boundary=rb))
+                                left_boundary=lb, right_boundary=rb, polygon=lp))
     if isinstance(obj.get("lanes"), list) and not obj["lanes"]:
         c.add("lanes", NO_LANES, "an empty list")
     ids_text = _ids_text(lane_ids)

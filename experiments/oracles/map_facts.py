@@ -5,8 +5,10 @@ Re-simulates every episode of a ``drivee2e bench`` results folder
 shapely, what the compiled step judged from the map: how far the ego's
 corners are outside the union of the drivable polygons (nuPlan DAC at
 >= 0.3 m, NAVSIM DAC at > 0), whether a single lane polygon holds the ego
-(``multi_lane``) and nuPlan's driving-direction compliance (travel against
-the lane polygon holding the ego centre, 1 s windows). Prints, per policy, the episode agreement of both DACs,
+(``multi_lane``), nuPlan's driving-direction compliance (travel against
+the lane polygon holding the ego centre, 1 s windows) and, under ``--preset
+navsim``, NAVSIM's lane-keeping deviation (the centre's distance to the
+centreline of the lane holding it) and LK column. Prints, per policy, the episode agreement of both DACs,
 the per-instant agreement, and every disagreeing episode.
 
     python experiments/oracles/map_facts.py results/twin15-val
@@ -63,6 +65,12 @@ def summarize(policy: str, per_episode: dict) -> dict:
     s["direction_disagree"] = [sid + (" (borderline)" if r["direction_borderline"] else "")
                                for sid, r in per_episode.items()
                                if "direction" in r and r["direction"][0] != r["direction"][1]]
+    lks = [r["lk"] for r in rows if "lk" in r]
+    s["lk_agree"] = float(np.mean([a == b for a, b in lks])) if lks else None
+    s["lk_disagree"] = [sid for sid, r in per_episode.items() if "lk" in r and r["lk"][0] != r["lk"][1]]
+    inst = [r["lk_instant_agree"] for r in rows if "lk_instant_agree" in r]
+    s["lk_instant_agree"] = float(np.mean(inst)) if inst else None
+    s["lk_worst_gap_m"] = max((r["lk_worst_gap_m"] for r in rows if "lk_worst_gap_m" in r), default=None)
     s["excess_instant_agree"] = float(np.mean([r["excess_agree"] for r in rows])) if n else 1.0
     s["multi_lane_instant_agree"] = float(np.mean([r["multi_lane_agree"] for r in rows])) if n else 1.0
     s["lanes_overflow_steps"] = int(sum(r["lanes_overflow_steps"] for r in rows))
@@ -94,6 +102,13 @@ def main(argv=None) -> int:
             print(f"  nuPlan driving direction agree {100 * s['direction_agree']:6.2f} %   disagree: "
                   f"{', '.join(s['direction_disagree']) or '-'}")
             ok &= s["direction_agree"] >= a.min_agree
+        if s["lk_agree"] is not None:
+            print(f"  NAVSIM lane keeping agree {100 * s['lk_agree']:6.2f} %   disagree: "
+                  f"{', '.join(s['lk_disagree']) or '-'}")
+            ok &= s["lk_agree"] >= a.min_agree
+        if s["lk_instant_agree"] is not None:
+            print(f"  per instant: LK deviation agree {100 * s['lk_instant_agree']:.2f} %, worst gap where a lane "
+                  f"holds the centre {s['lk_worst_gap_m']:.3f} m")
         print(f"  per instant: excess agree {100 * s['excess_instant_agree']:.2f} %, multi-lane agree "
               f"{100 * s['multi_lane_instant_agree']:.2f} %, worst episode max-excess gap {s['worst_excess_gap_m']:.3f} m, "
               f"steps with more lanes than tested: {s['lanes_overflow_steps']}")

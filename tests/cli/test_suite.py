@@ -70,16 +70,31 @@ def test_validate_notes_lane_polygon_fallbacks(capsys, tiny_suite_dir):
     lane = obj["lanes"][0]
     lane["left_boundary"] = [[x, y + 1.0] for x, y in lane["centerline"]]
     lane["right_boundary"] = [[x, y - 1.0] for x, y in lane["centerline"]]
+    (x0, y0), (x1, y1) = obj["lanes"][1]["centerline"][0], obj["lanes"][1]["centerline"][-1]
+    obj["lanes"][1]["polygon"] = [[x0, y0 - 1.0], [x1, y1 - 1.0], [x1, y1 + 1.0], [x0, y0 + 1.0]]
     p.write_text(json.dumps(obj))
     code, out, err = run(capsys, "suite", "validate", str(tiny_suite_dir))
     assert (code, out.strip()) == (0, "OK: 4 scenarios, 2 maps")
     n = len(obj["lanes"])
     assert (f"note: map m_cross: no drivable_areas; drivable-area compliance uses the union of its lane "
-            f"polygons (1 from boundaries, {n - 1} from centreline ± width/2)") in err.splitlines()
-    ids = ", ".join(str(ln["id"]) for ln in obj["lanes"][1:])
-    assert f"note: map m_cross: lanes {ids} have no left/right_boundary; their polygons are the centreline ± width/2" \
+            f"polygons (1 the lane's own polygon, 1 from boundaries, {n - 2} from centreline ± width/2)") \
         in err.splitlines()
+    ids = ", ".join(str(ln["id"]) for ln in obj["lanes"][2:])
+    assert (f"note: map m_cross: lanes {ids} have no polygon nor left/right_boundary; their polygons are the "
+            f"centreline ± width/2") in err.splitlines()
     assert "m_tee" not in err  # it has drivable areas and no boundaries at all
+
+
+def test_validate_refuses_a_self_intersecting_lane_polygon(capsys, tiny_suite_dir):
+    p = tiny_suite_dir / "maps" / "m_cross.json"
+    obj = json.loads(p.read_text())
+    obj["lanes"][0]["polygon"] = [[0, 0], [4, 4], [4, 0], [0, 3]]  # a bow tie
+    p.write_text(json.dumps(obj))
+    code, out, err = run(capsys, "suite", "validate", str(tiny_suite_dir))
+    assert code != 0
+    line = next((ln for ln in (out + err).splitlines() if "lanes[0].polygon" in ln), out + err)
+    assert "expected a simple ring" in line and "Self-intersection" in line, line
+    assert "Traceback" not in err
 
 
 def test_validate_lists_every_problem(capsys, tiny_suite_dir):

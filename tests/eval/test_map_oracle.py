@@ -49,3 +49,29 @@ def test_drivable_area_matches_shapely(run, policy):
         worst = max(worst, cmp["excess_max"][1])
     if policy == "constant_velocity":
         assert worst > map_oracle.NUPLAN_DAC_M  # it leaves the road somewhere: the check can fail
+
+
+@pytest.fixture(scope="module")
+def navsim_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("oracle_navsim") / "run"
+    rc = main(["bench", "--suite", "twin15", "--split", "val", "--limit", "8", "--preset", "navsim",
+               "--policy", "expert", "--policy", "constant_velocity", "--out", str(out), "--no-progress"])
+    assert rc == 0
+    return out
+
+
+def test_navsim_lane_keeping_matches_shapely(navsim_run):
+    """LK's deviation (centre to the centreline of the lane polygon holding it, NAVSIM's
+    Point.distance(linestring)) and the LK column, against shapely on the suite's lanes."""
+    worst, cols = 0.0, []
+    for policy in ("expert", "constant_velocity"):
+        maps = traces.read_run(navsim_run, policy).spec.load_suite().maps
+        for tr in traces.iter_traces(navsim_run, policy, sensors=()):
+            oracle = map_oracle.episode_oracle(tr, maps[tr.meta["map_id"]])
+            cmp = map_oracle.compare(tr, oracle)
+            assert cmp["lk_instant_agree"] >= 0.99, (policy, tr.scenario_id, cmp)
+            assert cmp["lk"][0] == cmp["lk"][1], (policy, tr.scenario_id, cmp)
+            assert cmp["navsim_lk"] >= cmp["lk"][0]  # the column: the human filter may only raise it
+            worst = max(worst, float(oracle["lk_deviation"][~oracle["lk_junction"]].max(initial=0.0)))
+            cols.append(cmp["lk"][1])
+    assert worst > map_oracle.LK_DEVIATION_M  # some deviation exceeds the limit: the check can fail

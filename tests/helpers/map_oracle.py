@@ -37,8 +37,12 @@ DIRECTION_WINDOW_S = 1.0
 
 
 def lane_polygon(lane) -> Polygon:
-    """A lane's area: left boundary + reversed right boundary where the record
-    has both, else the centreline buffered by width / 2 with flat ends."""
+    """A lane's area: its own ring where the record has one; left boundary +
+    reversed right boundary where it has both, else the centreline buffered by
+    width / 2 with flat ends."""
+    own = getattr(lane, "polygon", None)
+    if own is not None and len(own) >= 3:
+        return shapely.make_valid(Polygon(np.asarray(own, float)[:, :2]))
     left, right = getattr(lane, "left_boundary", None), getattr(lane, "right_boundary", None)
     if left is not None and right is not None and len(left) >= 2 and len(right) >= 2:
         ring = np.concatenate([np.asarray(left, float), np.asarray(right, float)[::-1]])
@@ -117,6 +121,59 @@ def direction_compliance(oncoming: np.ndarray, dt: float) -> tuple[float, float]
     return (1.0 if worst < DIRECTION_M[0] else (0.5 if worst < DIRECTION_M[1] else 0.0)), float(worst)
 
 
+#: NAVSIM lane keeping (pdm_scorer.yaml): deviation limit (m) and window (s).
+LK_DEVIATION_M = 0.5
+LK_WINDOW_S = 2.0
+#: Per-instant agreement of the LK deviation, m (float32 nearest segment against shapely).
+LK_TOL_M = 0.01
+#: NAVSIM takes the first of equally aligned lanes in its map order; both sides here take
+#: the nearest centreline among lanes whose direction cosine is within this of the best.
+LK_ALIGN_TIE = 1e-3
+
+
+def lk_deviation(xy, yaw, lanes: list, lines: list, connector: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per point of ``xy`` (n, 2): the centre's distance to the centreline of
+    the lane polygon holding it with the lowest heading error (NAVSIM's
+    starting-lane rule; ``Point.distance(linestring)``; ties within
+    ``LK_ALIGN_TIE``: the nearest of them), else to the nearest
+    centreline; whether a holding lane exists; whether a connector holds it
+    (NAVSIM's INTERSECTION layer, skipped by LK). Returns three (n,) arrays."""
+    xy, yaw = np.asarray(xy, float), np.asarray(yaw, float)
+    dev, held, junction = np.zeros(len(xy)), np.zeros(len(xy), bool), np.zeros(len(xy), bool)
+    for k in range(len(xy)):
+        p = Point(xy[k])
+        heading = np.array([np.cos(yaw[k]), np.sin(yaw[k])])
+        holding = []  # (alignment, distance)
+        for lp, line, conn in zip(lanes, lines, connector):
+            if not lp.covers(p):
+                continue
+            junction[k] |= conn
+            s = line.project(p)
+            a, b = line.interpolate(max(s - 0.05, 0.0)), line.interpolate(min(s + 0.05, line.length))
+            t = np.array([b.x - a.x, b.y - a.y])
+            holding.append((float(t @ heading) / max(np.linalg.norm(t), 1e-9), p.distance(line)))
+        held[k] = bool(holding)
+        if holding:  # equally aligned lanes (within LK_ALIGN_TIE): the nearest centreline
+            best = max(al for al, _ in holding)
+            dev[k] = min(d for al, d in holding if al >= best - LK_ALIGN_TIE)
+        else:
+            dev[k] = min((ln.distance(p) for ln in lines), default=np.inf)
+    return dev, held, junction
+
+
+def lane_keeping(dev: np.ndarray, junction: np.ndarray, dt: float) -> float:
+    """NAVSIM ``_calculate_lane_keeping``: 0 once the deviation exceeds 0.5 m on
+    ceil(2 s / dt) consecutive states, junction states skipped (no reset)."""
+    need, run = int(np.ceil(LK_WINDOW_S / dt - 1e-9)), 0
+    for d, j in zip(dev, junction):
+        if j:
+            continue
+        run = run + 1 if d > LK_DEVIATION_M else 0
+        if run >= need:
+            return 0.0
+    return 1.0
+
+
 def episode_oracle(trace, map_record) -> dict:
     """Oracle facts of one trace at instants 1..n (the states after each active step)."""
     corners = ego_corners(trace.ego_xy[1:], trace.ego_yaw[1:], float(trace.ego_size[0]), float(trace.ego_size[1]))
@@ -126,7 +183,11 @@ def episode_oracle(trace, map_record) -> dict:
     lines = [LineString(np.asarray(ln.centerline, float)) for ln in records]
     oncoming = oncoming_travel(trace.ego_xy, trace.ego_yaw, lanes, lines)
     direction, worst = direction_compliance(oncoming, float(trace.dt))
-    return {"excess": excess, "multi_lane": multi_lane(lanes, corners), "oncoming": oncoming,
+    dev, held, junction = lk_deviation(trace.ego_xy[1:], trace.ego_yaw[1:], lanes, lines,
+                                       [ln.type == "connector" for ln in records])
+    return {"lk_deviation": dev, "lk_held": held, "lk_junction": junction,
+            "lk": lane_keeping(dev, junction, float(trace.dt)),
+            "excess": excess, "multi_lane": multi_lane(lanes, corners), "oncoming": oncoming,
             "direction": direction, "direction_borderline": bool(min(abs(worst - t) for t in DIRECTION_M)
                                                                   < DIRECTION_BORDER_M),
             "dac_nuplan_fail": bool(np.any(excess >= NUPLAN_DAC_M)), "dac_navsim_fail": bool(np.any(excess > 0.0))}
@@ -155,7 +216,22 @@ def compare(trace, oracle: dict) -> dict:
         "multi_lane_steps": (int(ml.sum()), int(oracle["multi_lane"].sum())),
         "lanes_overflow_steps": int(np.sum(trace.timeline.get("facts.lanes_overflow", np.zeros(1))[1:])),
     }
+    lk = trace.timeline.get("facts.navsim.lane_offset")
+    if lk is not None:
+        lk = np.asarray(lk[1:], float)
+        orc_lk, held = oracle["lk_deviation"], oracle["lk_held"]
+        # where a lane holds the centre the values must match; elsewhere both only need to exceed 0.5 m
+        ok = np.where(held, np.abs(lk - orc_lk) <= LK_TOL_M, (lk > LK_DEVIATION_M) == (orc_lk > LK_DEVIATION_M))
+        out["lk_instant_agree"] = float(np.mean(ok)) if len(ok) else 1.0
+        out["lk_worst_gap_m"] = float(np.max(np.abs(lk - orc_lk)[held], initial=0.0))
+        out["lk_worst_gap_step"] = int(np.argmax(np.where(held, np.abs(lk - orc_lk), -1.0))) + 1 if held.any() else -1
+        # The row's navsim_lk is human-filtered (1 where the logged ego fails LK too), so the
+        # step's own LK is NAVSIM's rule on the step's deviations and junction flags.
+        junction = np.asarray(trace.timeline["facts.navsim.in_junction"][1:], bool)
+        out["lk"] = (lane_keeping(lk, junction, float(trace.dt)), oracle["lk"])
     row = trace.row or {}
+    if row.get("navsim_lk") is not None:
+        out["navsim_lk"] = float(row["navsim_lk"])
     if row.get("nuplan_driving_direction_compliance") is not None:
         out["direction"] = (float(row["nuplan_driving_direction_compliance"]), oracle["direction"])
         out["direction_borderline"] = oracle["direction_borderline"]

@@ -27,7 +27,8 @@ def straight_log(n: int, dt: float = 0.1, speed: float = 10.0, **overrides) -> S
         red_light=np.zeros(n, bool),
         lane_offset=np.zeros(n, np.float32),
         navsim=SimpleNamespace(
-            ttc_violation=np.zeros(n, bool), in_junction=np.zeros(n, bool), oncoming=np.zeros(n, bool)
+            ttc_violation=np.zeros(n, bool), in_junction=np.zeros(n, bool), oncoming=np.zeros(n, bool),
+            lane_offset=np.zeros(n, np.float32),
         ),
     )
     log = SimpleNamespace(

@@ -11,6 +11,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from shapely.geometry import LineString, Point
 
 from drivee2e_jax.metrics import navsim
 from drivee2e_jax.replay import AgentStates
@@ -99,7 +100,7 @@ def _tick(ego, agent_xy=(100.0, 100.0)):
     agents = AgentStates(xy=jnp.array([agent_xy]), yaw=jnp.zeros(1), vel=jnp.zeros((1, 2)), valid=jnp.array([True]))
     el = lane_helpers.ego_lanes(ego, LW, _lanes(), rear_offset=1.45)
     return navsim.tick(ego, LW, agents, jnp.array([[4.0, 2.0, 1.5]]), jnp.array([0]), jnp.array([True]),
-                       el.centre_in, el.rear_in, el.tangent, el.connector)
+                       el.centre_in, el.rear_in, el.tangent, el.connector, centre_offset=el.centre_offset)
 
 
 def test_tick_junction_and_oncoming():
@@ -210,6 +211,80 @@ def test_lk_junction_skips_without_reset():
     assert _lk(off) == 1.0
     assert _lk(off, junction=[False] * 10 + [True] + [False] * 10) == 0.0
     assert _lk([0.6] * 25, junction=[True] * 25) == 1.0
+
+
+# --- LK's deviation: the centre's distance to the centreline of the lane holding it ------
+
+
+def _lk_offset(ego, centrelines, types=None):
+    lmap = lane_helpers.lane_map(centrelines, types=types)
+    el = lane_helpers.ego_lanes(ego, LW, lmap)
+    agents = AgentStates(xy=jnp.array([[900.0, 900.0]]), yaw=jnp.zeros(1), vel=jnp.zeros((1, 2)),
+                         valid=jnp.array([True]))
+    t = navsim.tick(ego, LW, agents, jnp.array([[4.0, 2.0, 1.5]]), jnp.array([0]), jnp.array([True]),
+                    el.centre_in, el.rear_in, el.tangent, el.connector, centre_offset=el.centre_offset)
+    return float(t.lane_offset)
+
+
+def test_lk_offset_worked_cases():
+    x = np.arange(-10.0, 41.0, 2.0)
+    a = np.stack([x, np.zeros_like(x)], -1)  # along +x at y = 0, 3.5 m wide
+    b = np.stack([x, np.full_like(x, 3.5)], -1)  # its left neighbour
+    # 1.2 m left of lane a's centreline, inside a (|y| < 1.75): 1.2 m.
+    assert _lk_offset(_ego(5.0, 1.2), [a, b]) == pytest.approx(1.2, abs=1e-5)
+    # 2.0 m left of a is inside b, 1.5 m right of b's centreline: 1.5 m (not a's 2.0).
+    assert _lk_offset(_ego(5.0, 2.0), [a, b]) == pytest.approx(1.5, abs=1e-5)
+    # Off every lane (y = -2.5): the nearest lane's centreline, 2.5 m.
+    assert _lk_offset(_ego(5.0, -2.5), [a, b]) == pytest.approx(2.5, abs=1e-5)
+    # A curve: an arc of radius 20 m sampled every 1 m (chord sagitta 6.25 mm);
+    # the ego 0.6 m outside the arc at 30 deg, heading along it. Its distance
+    # to the sampled centreline, as shapely measures it (NAVSIM's
+    # Point.distance(linestring)): 20.6 - 20 cos(0.025) / cos(0.0014) = 0.6062 m.
+    th = np.arange(0.0, math.pi / 2, 1.0 / 20.0)
+    arc = 20.0 * np.stack([np.cos(th), np.sin(th)], -1)
+    p = 20.6 * np.array([math.cos(math.pi / 6), math.sin(math.pi / 6)])
+    got = _lk_offset(_ego(p[0], p[1], yaw=math.pi / 6 + math.pi / 2), [arc])
+    assert got == pytest.approx(Point(p).distance(LineString(arc)), abs=1e-4)
+    assert got == pytest.approx(0.6062, abs=1e-3)
+
+
+def test_lk_offset_picks_the_holding_lane_with_the_lowest_heading_error():
+    # Lane a along +x; lane c branches off at 21.8 deg (atan 0.4). The centre
+    # (6, 1.5) lies in both: 1.5 m from a's centreline and
+    # |1.5 - 2.4| cos(21.8 deg) = 0.8357 m from c's (NAVSIM's starting lane:
+    # the lowest heading error among the lanes holding the ego).
+    x = np.arange(0.0, 41.0, 2.0)
+    a = np.stack([x, np.zeros_like(x)], -1)
+    c = np.stack([x, 0.4 * x], -1)
+    assert _lk_offset(_ego(6.0, 1.5), [a, c]) == pytest.approx(1.5, abs=1e-5)
+    yaw_c = math.atan(0.4)
+    assert _lk_offset(_ego(6.0, 1.5, yaw=yaw_c), [a, c]) == pytest.approx(0.9 * math.cos(yaw_c), abs=1e-5)
+
+
+def test_lk_offset_equally_aligned_lanes_take_the_nearest_centreline():
+    # A wide lane (10 m, centreline y = 3) listed first and a 3.5 m lane at y = 0,
+    # both holding (5, 0.5) and both parallel to the ego: a tie, not the first
+    # listed (2.5 m) but the nearest centreline, 0.5 m (nuScenes scene-0103: a
+    # lane polygon reaching 9 m beside its own short centreline).
+    x = np.arange(-10.0, 41.0, 2.0)
+    wide = np.stack([x, np.full_like(x, 3.0)], -1)
+    a = np.stack([x, np.zeros_like(x)], -1)
+    lmap = lane_helpers.lane_map([wide, a], widths=[10.0, 3.5])
+    ego = _ego(5.0, 0.5)
+    el = lane_helpers.ego_lanes(ego, LW, lmap)
+    assert int(np.sum(np.asarray(el.centre_in))) == 2
+    got = navsim.lk_offset(el.centre_in, el.tangent, el.centre_offset, ego.yaw)
+    assert float(got) == pytest.approx(0.5, abs=1e-5)
+
+
+def test_lk_reads_the_navsim_lane_offset_not_the_strip_offset():
+    sc = straight_scenario()
+    n = 40
+    # the LB 2.0 strip offset says 0.9 m throughout, the lane-polygon offset 0.1 m: LK passes
+    log = straight_log(n, f_lane_offset=np.full(n, 0.9), nv_lane_offset=np.full(n, 0.1))
+    assert navsim.episode_columns(log, sc, 0.1)["navsim_lk"] == 1.0
+    log = straight_log(n, f_lane_offset=np.zeros(n), nv_lane_offset=np.full(n, 0.6))
+    assert navsim.episode_columns(log, sc, 0.1)["navsim_lk"] == 0.0
 
 
 # --- EP (S _calculate_progress, _aggregate_pdm_scores) -------------------------------------

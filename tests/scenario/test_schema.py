@@ -139,13 +139,19 @@ def test_lane_boundaries_round_trip_and_stay_optional(tiny_suite, tmp_path):
     lane = suite.maps["m_cross"].lanes[0]
     cl = np.asarray(lane.centerline, float)
     lane.left_boundary, lane.right_boundary = cl + [0.0, 1.75], cl - [0.0, 1.75]
+    other = suite.maps["m_cross"].lanes[1]
+    (x0, y0), (x1, y1) = np.asarray(other.centerline, float)[[0, -1]]
+    other.polygon = np.array([[x0, y0 - 1.5], [x1, y1 - 1.5], [x1, y1 + 1.5], [x0, y0 + 1.5]])
     write_suite(suite, tmp_path / "s")
     obj = json.loads((tmp_path / "s" / M).read_text())
     assert "left_boundary" in obj["lanes"][0] and "left_boundary" not in obj["lanes"][1]
+    assert "polygon" in obj["lanes"][1] and all("polygon" not in o for i, o in enumerate(obj["lanes"]) if i != 1)
     back = read_suite(tmp_path / "s").maps["m_cross"].lanes
     np.testing.assert_allclose(back[0].left_boundary, lane.left_boundary, atol=5e-4)
     np.testing.assert_allclose(back[0].right_boundary, lane.right_boundary, atol=5e-4)
     assert back[1].left_boundary is None and back[1].right_boundary is None
+    np.testing.assert_allclose(back[1].polygon, other.polygon, atol=5e-4)
+    assert back[0].polygon is None
 
 
 def _edit(folder, rel, fn):

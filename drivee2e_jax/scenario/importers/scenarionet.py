@@ -26,9 +26,15 @@ Conversion:
 * the ego position is the nuScenes ``ego_pose`` (midpoint of the rear axle);
   the written box centre is ``EGO_CENTER_OFFSET_M`` ahead of it (approximate,
   for the Renault Zoe of the nuScenes fleet).
-* map: ``LANE_*`` features -> lanes (``polyline`` centreline, width = polygon
-  area / centreline length, clipped to 2-6 m; successors inferred from
-  geometry when the source has no ``exit_lanes``), ``ROAD_LINE_*`` ->
+* map: ``LANE_*`` features -> lanes (``polyline`` centreline; the lane's
+  ``polygon``, where the source has one, as the lane's area
+  (``LaneRecord.polygon``: nuScenes lanes and nuPlan lanes and connectors
+  carry it; nuScenes lane connectors do not, and a self-intersecting one is
+  dropped with a note); LANE_SURFACE_UNSTRUCTURE, and in a nuScenes
+  conversion a lane without a polygon, is a junction ``connector``; width = polygon area / centreline length, clipped to
+  2-6 m, else 3.5 m, which the lanes without a polygon use as centreline ±
+  width/2; successors inferred from geometry when the source has no
+  ``exit_lanes``), ``ROAD_LINE_*`` ->
   boundaries with markings, ``ROAD_EDGE_*`` -> ``road_edge`` boundaries,
   ``CROSSWALK`` -> crosswalks; other feature types are counted in a note.
 * honesty about interpolation: nuScenes annotates at 2 Hz and ScenarioNet
@@ -49,6 +55,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from shapely.geometry import Polygon
 
 try:  # numpy >= 2 (numpy 1.x pickles name numpy.core, 2.x numpy._core: admit both)
     from numpy._core import multiarray, numeric
@@ -302,8 +309,10 @@ LINE_MARKINGS = {
     "ROAD_LINE_UNKNOWN": "none", "ROAD_EDGE_BOUNDARY": "road_edge", "ROAD_EDGE_MEDIAN": "road_edge",
     "ROAD_EDGE_UNKNOWN": "road_edge", "ROAD_EDGE_SIDEWALK": "road_edge",
 }
+#: LANE_SURFACE_UNSTRUCTURE is what the nuScenes and nuPlan conversions write for junction
+#: connectors (nuScenes lane_connector, nuPlan ROADBLOCK_CONNECTOR lanes): NAVSIM's INTERSECTION.
 LANE_KINDS = {"LANE_SURFACE_STREET": "driving", "LANE_FREEWAY": "driving", "LANE_UNKNOWN": "driving",
-              "LANE_SURFACE_UNSTRUCTURE": "driving", "LANE_BIKE_LANE": "bike"}
+              "LANE_SURFACE_UNSTRUCTURE": "connector", "LANE_BIKE_LANE": "bike"}
 #: nuScenes ego: box centre ahead of the rear-axle pose, m (approximate).
 EGO_CENTER_OFFSET_M = 1.3
 MAP_RADIUS_M = 100.0
@@ -361,9 +370,13 @@ def _polygon_area(p: np.ndarray) -> float:
     return 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
 
 
-def _map(features: dict, map_id: str, source: str, notes: list[str]) -> MapRecord:
+def _map(features: dict, map_id: str, source: str, notes: list[str], dataset: str = "") -> MapRecord:
+    """The map features as a MapRecord. ``dataset`` "nuscenes": a lane without a
+    polygon is a lane connector (ScenarioNet's nuScenes converter writes every
+    lane's polygon and no connector's; before its commit 69a3d7a it typed both
+    LANE_SURFACE_STREET)."""
     lanes, boundaries, crosswalks, other = [], [], [], {}
-    has_links = False
+    has_links, bad_polygons = False, 0
     for i, (fid, feat) in enumerate(sorted(features.items(), key=lambda x: str(x[0]))):
         where = f"{source}: map_features[{fid!r}]"
         typ = str(_get(feat, "type", where, None))
@@ -372,14 +385,20 @@ def _map(features: dict, map_id: str, source: str, notes: list[str]) -> MapRecor
             if len(c) < 2 or polyline_length(c) < 0.1:
                 other[f"degenerate {typ}"] = other.get(f"degenerate {typ}", 0) + 1
                 continue
-            width = 3.5
+            width, poly = 3.5, None
             if feat.get("polygon") is not None and len(feat["polygon"]) >= 3:
                 poly = _array(feat["polygon"], f"{where}.polygon", 2)[:, :2]
                 width = float(np.clip(_polygon_area(poly) / polyline_length(c), 2.0, 6.0))
+                if not Polygon(poly).is_valid or _polygon_area(poly) <= 0.0:
+                    bad_polygons += 1
+                    poly = None
             succ = [int(s) for s in feat.get("exit_lanes", []) if str(s).lstrip("-").isdigit()]
             has_links |= bool(succ)
-            lanes.append(LaneRecord(id=i, centerline=c, width=width, type=LANE_KINDS[typ], successors=succ,
-                                    left_marking="none", right_marking="none"))
+            kind = LANE_KINDS[typ]
+            if dataset == "nuscenes" and kind == "driving" and feat.get("polygon") is None:
+                kind = "connector"
+            lanes.append(LaneRecord(id=i, centerline=c, width=width, type=kind, successors=succ,
+                                    left_marking="none", right_marking="none", polygon=poly))
         elif typ in LINE_MARKINGS:
             p = _array(_get(feat, "polyline", where, None), f"{where}.polyline", 2)[:, :2]
             if len(p) >= 2:
@@ -390,6 +409,9 @@ def _map(features: dict, map_id: str, source: str, notes: list[str]) -> MapRecor
                 crosswalks.append(p)
         else:
             other[typ] = other.get(typ, 0) + 1
+    if bad_polygons:
+        notes.append(f"{source}: {bad_polygons} lane polygon(s) self-intersect or have no area; those lanes' "
+                     "areas are their centreline ± width/2")
     if other:
         notes.append(f"{source}: map features not used: "
                      + ", ".join(f"{k} x{v}" for k, v in sorted(other.items())))
@@ -523,7 +545,7 @@ def _one(path: Path, options: ImportOptions, limit: int | None) -> ImportResult:
     ego = next((tr for tr in conv.tracks if tr.track_id == conv.ids[ego_src]), None)
     if ego is None:
         raise DriveE2EError(f"{path}: the ego track {ego_src!r} has no samples on the grid")
-    full = _map(features, common.safe_id(f"{label}_map"), src, notes)
+    full = _map(features, common.safe_id(f"{label}_map"), src, notes, dataset)
     full.obstacles = obstacles
     map_rec = common.crop_map(full, ego.xy, MAP_RADIUS_M)
     if conv.gap_tracks:

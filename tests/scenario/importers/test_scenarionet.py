@@ -8,10 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shapely.geometry import Polygon
 
 from drivee2e_jax.errors import DriveE2EError
 from drivee2e_jax.scenario.importers import ImportOptions, load, scenarionet
 from drivee2e_jax.scenario.importers.common import DEFAULT_SIZES
+from drivee2e_jax.scenario.lane_polygons import lane_polygon, lane_polygon_source
 from drivee2e_jax.scenario.validate import validate_records
 from tests.helpers.importer_files import scenario_dict, write_pkl
 
@@ -42,6 +44,33 @@ def test_tiny_scenario_converts(tmp_path):
     assert sorted(b.marking for b in m.boundaries) == ["road_edge", "solid"]
     assert len(m.crosswalks) == 1 and len(m.lanes) == 1 and m.lanes[0].width == pytest.approx(3.5)
     assert any("SPEED_BUMP x1" in n for n in r.notes) and any("swapped" in n for n in r.notes)
+
+
+def test_lane_polygon_is_the_lane_area_and_a_bad_one_falls_back(tmp_path):
+    """A lane's ``polygon`` (clockwise here) becomes its area as drawn; a bow tie is dropped with a note."""
+    from drivee2e_jax.scenario.lane_polygons import signed_area
+
+    d = scenario_dict()
+    d["map_features"]["lane_a"]["polygon"] = np.array([[-60, 1.75], [60, 1.75], [60, -1.75], [-60, -1.75]])
+    r = load("scenarionet", [write_pkl(tmp_path / "sd_cw.pkl", d)], ImportOptions())
+    (ln,) = r.maps[r.scenarios[0].map_id].lanes
+    assert lane_polygon_source(ln) == "polygon" and validate_records_ok(r)
+    ring = lane_polygon(ln)
+    assert signed_area(ring) == pytest.approx(120 * 3.5)  # made counter-clockwise, area kept
+    assert sorted(map(tuple, ring)) == sorted(map(tuple, d["map_features"]["lane_a"]["polygon"].astype(float)))
+    d["map_features"]["lane_a"]["polygon"] = np.array([[-60, -1.75], [60, 1.75], [60, -1.75], [-60, 1.0]])
+    r = load("scenarionet", [write_pkl(tmp_path / "sd_bow.pkl", d)], ImportOptions())
+    (ln,) = r.maps[r.scenarios[0].map_id].lanes
+    assert ln.polygon is None and lane_polygon_source(ln) == "centerline"
+    assert any("1 lane polygon(s) self-intersect or have no area" in n for n in r.notes)
+
+
+def test_unstructured_lane_surface_is_a_connector(tmp_path):
+    """ScenarioNet's nuScenes / nuPlan converters write junction connectors as LANE_SURFACE_UNSTRUCTURE."""
+    d = scenario_dict()
+    d["map_features"]["lane_a"]["type"] = "LANE_SURFACE_UNSTRUCTURE"
+    r = load("scenarionet", [write_pkl(tmp_path / "sd_conn.pkl", d)], ImportOptions())
+    assert [ln.type for ln in r.maps[r.scenarios[0].map_id].lanes] == ["connector"]
 
 
 def test_zero_or_tiny_sizes_become_the_category_default(tmp_path):
@@ -280,5 +309,16 @@ def test_shared_nuscenes_samples_import():
         assert route_len > 80  # the README: ~92 m and ~119 m
         m = r.maps[s.map_id]
         assert any(ln.successors for ln in m.lanes)  # inferred from geometry
+        # nuScenes lanes carry their polygon, lane connectors do not (ScenarioNet drops theirs)
+        feats = {tuple(np.round(np.asarray(f["polyline"])[0, :2], 6)): f for f in raw["map_features"].values()
+                 if str(f["type"]).startswith("LANE")}
+        for ln in m.lanes:
+            f = feats[tuple(np.round(ln.centerline[0], 6))]
+            assert lane_polygon_source(ln) == ("polygon" if "polygon" in f else "centerline")
+            # this (pre-69a3d7a) conversion types connectors LANE_SURFACE_STREET: no polygon = a connector
+            assert ln.type == ("driving" if "polygon" in f else "connector")
+            if "polygon" in f:
+                assert Polygon(lane_polygon(ln)).equals(Polygon(np.asarray(f["polygon"])[:, :2]))
+        assert {lane_polygon_source(ln) for ln in m.lanes} == {"polygon", "centerline"}
     assert any("% of moving agent samples lie exactly on straight" in n for n in r.notes)
     assert r.meta["interpolated_fraction"]["nuscenes_scene-0061"] > 0.5
