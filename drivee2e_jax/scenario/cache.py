@@ -47,8 +47,8 @@ CACHE_FORMAT = 1
 #: bump it when they change so that on-disk packed caches are rebuilt. It
 #: lives here so that the cache key is computed without importing ``pack``
 #: (which imports JAX).
-PACK_FORMAT = 4  # 2: obstacle footprints have their own vertex count; 3: map.lane_polygons, map.drivable_edges;
-# 4: positions in a local frame per map (meta.origin)
+PACK_FORMAT = 5  # 2: obstacle footprints have their own vertex count; 3: map.lane_polygons, map.drivable_edges;
+# 4: positions in a local frame per map (meta.origin); 5: a lane's own polygon (LaneRecord.polygon) moves with it
 
 
 def cache_key(source_parts: Mapping[str, Any], name: str) -> str:

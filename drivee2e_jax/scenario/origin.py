@@ -55,7 +55,7 @@ def map_points(m: MapRecord) -> np.ndarray:
     """(n, 2) float64: every point of the map's geometry (n may be 0)."""
     parts = [np.asarray(ln.centerline, np.float64).reshape(-1, 2) for ln in m.lanes]
     for ln in m.lanes:
-        parts += [np.asarray(b, np.float64).reshape(-1, 2) for b in (ln.left_boundary, ln.right_boundary)
+        parts += [np.asarray(b, np.float64).reshape(-1, 2) for b in (ln.left_boundary, ln.right_boundary, ln.polygon)
                   if b is not None]
     parts += [np.asarray(b.points, np.float64).reshape(-1, 2) for b in m.boundaries]
     parts += [np.asarray(p, np.float64).reshape(-1, 2) for p in (*m.crosswalks, *m.drivable_areas)]
@@ -103,7 +103,8 @@ def translate_map(m: MapRecord, d) -> MapRecord:
     return dataclasses.replace(
         m,
         lanes=[dataclasses.replace(ln, centerline=_moved(ln.centerline, d), left_boundary=_moved(ln.left_boundary, d),
-                                   right_boundary=_moved(ln.right_boundary, d)) for ln in m.lanes],
+                                   right_boundary=_moved(ln.right_boundary, d), polygon=_moved(ln.polygon, d))
+               for ln in m.lanes],
         boundaries=[dataclasses.replace(b, points=_moved(b.points, d)) for b in m.boundaries],
         crosswalks=[_moved(p, d) for p in m.crosswalks],
         stop_lines=[dataclasses.replace(s, points=_moved(s.points, d)) for s in m.stop_lines],

@@ -325,7 +325,7 @@ def check_map(obj: Any, c: Checker) -> MapRecord | None:
               if "left_boundary" in lobj else None)
         rb = (c.array(lobj["right_boundary"], join_path(p, "right_boundary"), cols=2, min_len=2, position=True)
               if "right_boundary" in lobj else None)
-        lp = (c.array(lobj["polygon"], join_path(p, "polygon"), cols=2, min_len=3)
+        lp = (c.array(lobj["polygon"], join_path(p, "polygon"), cols=2, min_len=3, position=True)
               if "polygon" in lobj else None)
         if lp is not None and (why := _ring_problem(lp)):
             c.add(join_path(p, "polygon"), "a simple ring (the lane's area, >= 3 distinct points, no "

@@ -51,7 +51,8 @@ def moved_map(m: MapRecord, d) -> MapRecord:
     return dataclasses.replace(
         m,
         lanes=[dataclasses.replace(ln, centerline=_move(ln.centerline, d), left_boundary=_move(ln.left_boundary, d),
-                                   right_boundary=_move(ln.right_boundary, d)) for ln in m.lanes],
+                                   right_boundary=_move(ln.right_boundary, d), polygon=_move(ln.polygon, d))
+               for ln in m.lanes],
         boundaries=[dataclasses.replace(b, points=_move(b.points, d)) for b in m.boundaries],
         crosswalks=[_move(p, d) for p in m.crosswalks],
         stop_lines=[dataclasses.replace(s, points=_move(s.points, d)) for s in m.stop_lines],
@@ -68,11 +69,22 @@ def moved_scenario(s: ScenarioRecord, d) -> ScenarioRecord:
                                   destination=_move(r.destination, d)))
 
 
+def _with_own_polygon(m: MapRecord) -> MapRecord:
+    """``m`` with its first lane carrying its own area ring (``LaneRecord.polygon``, as
+    ScenarioNet's lanes do): the ring must move with the origin like every other position."""
+    ln = m.lanes[0]
+    c, hw = np.asarray(ln.centerline, np.float64), 0.5 * float(ln.width)
+    t = (c[-1] - c[0]) / np.linalg.norm(c[-1] - c[0])
+    n = np.array([-t[1], t[0]]) * hw
+    ring = np.stack([c[0] - n, c[-1] - n, c[-1] + n, c[0] + n])
+    return dataclasses.replace(m, lanes=[dataclasses.replace(ln, polygon=ring), *m.lanes[1:]])
+
+
 def scenes():
     """The road scenes with an ego at 8.7 m/s on y = -1.6: neither its steps (0.87 m) nor its
     lane offset are multiples of float32's spacing at (4e6, 5e5) (0.5 m, 1/32 m), so without
     the origin the moved ego is quantised (at 10 m/s on y = -1.75 it happens to be exact)."""
-    maps = {m.map_id: m for m in (ss.road_map(), ss.road_map(obstacle=True))}
+    maps = {m.map_id: _with_own_polygon(m) for m in (ss.road_map(), ss.road_map(obstacle=True))}
     ego = ss.ego_track(speed=8.7, y=-1.6)
     scns = [ss.scenario("clean", [ego, ss.parked(5, 30.0, y=1.75)]), ss.scenario("car_ahead", [ego, ss.parked(5, 0.0)]),
             ss.scenario("ped", [ego, ss.parked(7, 20.0, category="pedestrian", size=(0.6, 0.6, 1.7))]),
