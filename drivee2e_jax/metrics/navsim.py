@@ -264,25 +264,41 @@ def tick(
 def no_at_fault_collision(active, agent_hit, hit_id, at_fault, layout_hit, speed) -> float:
     """NC in {0, 0.5, 1} (S ``_calculate_no_at_fault_collision``).
 
-    An agent contact that is not at fault puts its id on an ignore list (no
-    later contact with it counts); an at-fault one scores 0 (every packed
-    category is one of nuPlan's AGENT_TYPES). A layout contact is a static
-    object: STOPPED_TRACK (at fault, 0.5) while the ego speed > 0.05 m/s
-    (U ``get_collision_type``), else STOPPED_EGO (ignored).
-    All arguments (T,) per step.
+    Every track intersecting the ego at a step is classified (NAVSIM loops
+    over all of them): an agent contact that is not at fault puts its id on
+    an ignore list (no later contact with it counts); an at-fault one scores
+    0 (every packed category is one of nuPlan's AGENT_TYPES). A static object
+    contact is STOPPED_TRACK (at fault, 0.5) while the ego speed > 0.05 m/s
+    (U ``get_collision_type``), else STOPPED_EGO (not at fault: that object
+    is ignored afterwards, when obstacles carry their identity).
+
+    Args: active (T,) bool; agent_hit, hit_id, at_fault (T,) or (T, K) (every
+      overlapping candidate, ``infractions.ContactSet``); layout_hit (T,) or
+      (T, O) bool per obstacle row; speed (T,) m/s.
     """
-    score, ignored = 1.0, set()
+    hit, tid, fault = np.asarray(agent_hit, bool), np.asarray(hit_id), np.asarray(at_fault, bool)
+    if hit.ndim == 1:
+        hit, tid, fault = hit[:, None], tid[:, None], fault[:, None]
+    lay = np.asarray(layout_hit, bool)
+    lay = lay[:, None] if lay.ndim == 1 else lay
+    identity = np.asarray(layout_hit).ndim == 2
+    score, ignored, ignored_obs = 1.0, set(), set()
     for i in np.flatnonzero(active):
-        if layout_hit[i] and speed[i] > COLLISION_STOPPED_SPEED:
-            score = min(score, NC_OBJECT)
-        if agent_hit[i]:
-            tid = int(hit_id[i])
-            if tid in ignored:
+        for o in np.flatnonzero(lay[i]):
+            if identity and o in ignored_obs:
                 continue
-            if at_fault[i]:
+            if speed[i] > COLLISION_STOPPED_SPEED:
+                score = min(score, NC_OBJECT)
+            elif identity:
+                ignored_obs.add(o)
+        for k in np.flatnonzero(hit[i]):
+            t = int(tid[i, k])
+            if t in ignored:
+                continue
+            if fault[i, k]:
                 score = min(score, NC_AGENT)
             else:
-                ignored.add(tid)
+                ignored.add(t)
     return score
 
 
@@ -495,7 +511,10 @@ def _sub_metrics(log: Any, scenario: Any, dt: float, plans, plan_dt: float, ref_
         speed[idx], np.asarray(log.accel, np.float64)[idx], np.asarray(log.steer, np.float64)[idx],
         np.asarray(log.yaw_rate, np.float64)[idx], dt)
     out = {
-        "nc": no_at_fault_collision(active, f.agent_hit, f.agent_hit_id, f.at_fault, f.layout_hit, speed),
+        "nc": (no_at_fault_collision(active, f.agent_hit, f.agent_hit_id, f.at_fault, f.layout_hit, speed)
+               if getattr(f, "contacts", None) is None else
+               no_at_fault_collision(active, f.contacts.hit, f.contacts.track_id, f.contacts.at_fault,
+                                     f.contacts.obstacle_hit, speed)),
         "dac": 0.0 if np.any(active & (np.asarray(f.drivable_excess_m) > 0.0)) else 1.0,
         "ddc": driving_direction_compliance(
             active, log.xy, np.asarray(nv.oncoming, bool), np.asarray(nv.in_junction, bool), dt
