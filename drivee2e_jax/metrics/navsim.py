@@ -32,12 +32,13 @@ Every adaptation from NAVSIM's open-loop 4 s setting:
 col   NAVSIM (open loop, one 4 s proposal)         here (closed loop, whole episode)
 ====  ==========================================  ==========================================
 all   41 states at 0.1 s from t0                   every active step of the episode (sim dt)
-NC    shapely intersects; at-fault = STOPPED_TRACK same rule via facts.at_fault; agents 0,
-      / ACTIVE_FRONT / LATERAL in multi-lane or    layout (static obstacles, no track id)
-      non-drivable; agents 0, objects 0.5; a       0.5 while ego speed > 0.05 m/s (a static
-      track once hit not-at-fault is ignored        object is a stopped track; at ego <= 0.05
-      afterwards                                   it is STOPPED_EGO); ignored ids per
-                                                   agent_hit_id as NAVSIM
+NC    shapely intersects; at-fault = STOPPED_TRACK same rule per overlapping candidate
+      / ACTIVE_FRONT / LATERAL in multi-lane or    (facts.contacts: every track touching at a
+      non-drivable; agents 0, objects 0.5; a       step); agents 0, static obstacles 0.5 while
+      track once hit not-at-fault is ignored        ego speed > 0.05 m/s (a stopped track); at
+      afterwards                                   ego <= 0.05 it is STOPPED_EGO and that
+                                                   obstacle row is ignored afterwards, as an
+                                                   ignored track id
 DAC   any corner outside the drivable polygons    facts.drivable_excess_m > 0: a corner outside
       (shapely contains, no tolerance)             the union of the map's drivable polygons,
                                                    exact (infractions.drivable_excess); none
@@ -50,9 +51,11 @@ EP    progress along the centreline / max(PDM-     route progress / max(own prog
       its multiplier product); <= 5 m -> 1         the same time, times the human's product when
                                                    ``human`` is given); <= 5 m -> 1
 TTC   ego and the observed future agents at +0,    ego AND agents projected at constant velocity
-      0.3, 0.6, 0.9 s; a track first met not        (tick needs only the current state); static
-      ahead is ignored for the rest of the          map obstacles are not tested; the "ignore
-      proposal                                     once met not ahead" memory is per tick
+      0.3, 0.6, 0.9 s; a track first met not        (tick needs only the current state); still
+      ahead is ignored for the rest of the          the 16 nearest agents, static map obstacles
+      proposal                                     not tested (issue 35 item 4 done for nuplan
+                                                   only); the "ignore once met not ahead"
+                                                   memory is per tick
 LK    distance of centre to the route centreline   facts.lane_offset (nearest aligned lane
       > 0.5 m for ceil(2 s / 0.1 s) consecutive    centre) for ceil(2 s / dt) consecutive active
       non-intersection states                      steps; junction (connector) steps skipped

@@ -34,12 +34,15 @@ roadblocks, DRIVABLE_AREA layer)        polygons, exact (``infractions.drivable_
 expert route = roadblocks the expert    ``scenario.route`` (the logged ego path at 1 m): progress
 drives through; progress per roadblock  = arc of the foot point on that polyline (ego vs logged ego
 baseline (``PerFrameProgress...``)      over the same duration), not summed per roadblock
-TTC: ``observation.tracked_objects``    the <= 16 nearest replayed agents (``near``); static map
-incl. static objects                    obstacles are not projected (they are scored as layout
-                                        contacts only)
-TTC: tracks collided earlier are        agents overlapping the ego *now* are dropped (``tick`` has
-excluded at later ticks                 no memory); a new at-fault contact sets that tick's TTC to
-                                        0 on the host, as nuPlan
+TTC: ``observation.tracked_objects``    every replayed agent and every static map obstacle (speed
+incl. static objects (speed 0)          0, its polygon; ahead/behind from its vertex mean) that is
+                                        relevant and not collided; culled to <= 16 agents and <= 8
+                                        obstacles by a closest-approach reach bound that keeps every
+                                        one that can overlap (``ttc_candidates``); ``ttc_overflow``
+                                        flags a tick where more qualified (``ttc_reachable``)
+TTC: tracks collided earlier are        exact: ``CollisionMemory`` (per-episode, nuplan preset)
+excluded at later ticks                 holds every track / obstacle touched so far; a new at-fault
+                                        contact sets that tick's TTC to 0 on the host, as nuPlan
 TTC lateral tracks while "not in        ``wide_view`` argument: the caller passes
 common/connected route objs" or in an   ``multi_lane | on a connector``
 intersection
@@ -48,10 +51,11 @@ baseline of the lane/connector the ego  the ego centre (within width/2) that run
 centre is in, summed over 1 s windows   heading, only when no lane running its way holds it; the
                                         windows sum these (travel with the lane never offsets)
 collision classes VRU (pedestrian,      PEDESTRIAN, CYCLIST -> VRU; every other ``Category`` ->
-bicycle), vehicle, object               vehicle; layout contacts (``layout_hit`` rising edges) ->
-                                        object, at fault only if the ego moves > 0.05 m/s at
-                                        the first contact tick (stopped ego: not at fault, as
-                                        nuPlan); no obstacle id, so re-touching counts again
+bicycle), vehicle, object; every        vehicle; every overlapping candidate of the 16 nearest
+track overlapping at a tick is new      agents counts (``StepFacts.contacts``); static obstacles
+once per scenario                       -> object, each obstacle row once, at its first contact, at
+                                        fault only if the ego moves > 0.05 m/s then (stopped ego:
+                                        not at fault, as nuPlan)
 comfort: ``center_acceleration_2d``    ``ego_comfort_inputs``: nuPlan's bicycle-model state rebuilt
 x / y for the lon / lat bounds, the     from the step log: rear-axle acceleration (a_r, 0) with a_r
 rear-axle acceleration's magnitude      = d/dt (speed * cos beta) (no lateral term, as nuPlan's
