@@ -442,7 +442,7 @@ def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agen
     overflow = n_agents > rows.shape[0]
     reachable = n_agents
     ob_sat = ob_ok = None
-    if obstacles is not None:
+    if obstacles is not None and discs.centre.shape[0] > 0:  # a map may pack no obstacle rows
         if obstacle_collided is None:
             depth = jax.vmap(geometry.polygon_sat_box_penetration, in_axes=(0, None, None, None))(
                 obstacles, ego.xy, ego.yaw, ego_lw)
