@@ -83,6 +83,9 @@ class StepFacts:
                      preset, else None.
       navsim:        ``metrics.navsim.NavsimTick`` under the ``navsim``
                      preset, else None.
+      contacts:      ``ContactSet``, every overlapping candidate and obstacle
+                     (the scalar ``agent_hit*`` fields keep only the nearest),
+                     under the ``nuplan`` and ``navsim`` presets, else None.
     """
 
     agent_hit: jnp.ndarray
@@ -108,6 +111,34 @@ class StepFacts:
     speed_limit: jnp.ndarray
     nuplan: Any = None
     navsim: Any = None
+    contacts: Any = None
+
+
+@struct.dataclass
+class ContactSet:
+    """Every contact of one tick (the nuPlan / NAVSIM bookkeeping).
+
+    nuPlan's ``find_new_collisions`` (no_ego_at_fault_collisions.py) tests the
+    ego box against every tracked object and registers each overlapping track
+    token; the scalar ``StepFacts.agent_hit*`` fields keep only the nearest
+    overlapping agent (enough for the leaderboard's one event per contact).
+
+    Attributes:
+      hit:       (K,) bool the ego box overlaps candidate row k (the rows of
+                 ``nearest_rows``; a logged-overlap exempt row is False).
+      track_id:  (K,) int32 track id of each candidate row.
+      category:  (K,) int32 ``Category`` of each candidate row.
+      at_fault:  (K,) bool ``hit`` and that contact is the ego's fault
+                 (``collision_type`` + ``at_fault`` per row).
+      obstacle_hit: (O,) bool the ego box overlaps static obstacle o (its row
+                 in ``MapData.obstacles``: the obstacle's identity).
+    """
+
+    hit: jnp.ndarray
+    track_id: jnp.ndarray
+    category: jnp.ndarray
+    at_fault: jnp.ndarray
+    obstacle_hit: jnp.ndarray
 
 
 #: At most this many agents per episode are exempt for a logged overlap with
@@ -130,23 +161,55 @@ def nearest_rows(ego: EgoState, agents: AgentStates, k: int = CONTACT_CANDIDATES
     return idx, jnp.isfinite(neg)
 
 
-def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, track_id, near, near_ok):
+def candidate_overlaps(ego: EgoState, ego_lw, agents: AgentStates, size, near):
+    """(K,) bool: the ego box overlaps the box of candidate row ``near[k]``
+    (validity not applied)."""
+    return jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))(
+        ego.xy, ego.yaw, ego_lw, agents.xy[near], agents.yaw[near], size[near, :2]
+    )
+
+
+def agent_contacts(ego: EgoState, ego_lw, agents: AgentStates, size, category, track_id, near, near_ok,
+                   overlap=None):
     """Which replayed agent (if any) the ego box overlaps.
 
     Tests the candidate rows ``near`` (nearest first, from ``nearest_rows``)
     and returns (hit, track id, class, category, row) of the nearest
     overlapping one. CARLA reports one collision event per contact; one per tick is
     enough here because ``CollisionDedup`` drops repeats of the same actor
-    within 5 s and any contact within 5 m of the last counted one.
+    within 5 s and any contact within 5 m of the last counted one. Every
+    overlapping row (nuPlan counts each track): ``contact_set``.
+    ``overlap``: (K,) ``candidate_overlaps`` if already computed.
     """
-    overlap = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))(
-        ego.xy, ego.yaw, ego_lw, agents.xy[near], agents.yaw[near], size[near, :2]
-    )
+    if overlap is None:
+        overlap = candidate_overlaps(ego, ego_lw, agents, size, near)
     overlap = overlap & near_ok
     i = near[jnp.argmax(overlap)]
     cat = category[i]
     cls = jnp.where(cat == Category.PEDESTRIAN, CLASS_WALKER, CLASS_VEHICLE)
     return overlap.any(), track_id[i], cls.astype(jnp.int32), cat.astype(jnp.int32), i
+
+
+def contact_set(ego: EgoState, ego_lw, rear_offset, agents: AgentStates, size, category, track_id, near, hit,
+                multi_lane, drivable_excess_m, obstacle_hit) -> ContactSet:
+    """``ContactSet`` of one tick: every overlapping candidate row with its
+    nuPlan collision type and fault, and the obstacles touched.
+
+    Args:
+      ego: EgoState after the step.  ego_lw: (2,) m.  rear_offset: () m.
+      agents: AgentStates (A,).  size: (A, 3) m.  category, track_id: (A,) int.
+      near: (K,) candidate rows.  hit: (K,) bool overlapping and counted
+        (``candidate_overlaps & near_ok & ~exempt``).
+      multi_lane: () bool.  drivable_excess_m: () m (``at_fault``'s lateral rule).
+      obstacle_hit: (O,) bool (``layout_contacts``).
+    """
+    kind = jax.vmap(collision_type, in_axes=(None, None, None, 0, 0, 0, 0))(
+        ego, ego_lw, rear_offset, agents.xy[near], agents.yaw[near], size[near, :2],
+        geometry.safe_norm(agents.vel[near]),
+    )
+    fault = hit & at_fault(kind, multi_lane, drivable_excess_m)
+    return ContactSet(hit=hit, track_id=track_id[near].astype(jnp.int32), category=category[near].astype(jnp.int32),
+                      at_fault=fault, obstacle_hit=obstacle_hit)
 
 
 #: nuPlan's ``stopped_speed_threshold``: a speed at or below this is stopped, m/s.
@@ -501,12 +564,17 @@ def obstacle_sat(map_data: MapData) -> geometry.PolygonSAT:
     return jax.vmap(geometry.polygon_sat)(obs.xy, obs.point_valid & obs.valid[:, None])
 
 
-def layout_contact(ego: EgoState, ego_lw, sat: geometry.PolygonSAT):
-    """Whether the ego box overlaps any static obstacle footprint (convex)."""
+def layout_contacts(ego: EgoState, ego_lw, sat: geometry.PolygonSAT):
+    """(O,) bool: the ego box overlaps static obstacle footprint o (convex)."""
     depth = jax.vmap(geometry.polygon_sat_box_penetration, in_axes=(0, None, None, None))(
         sat, ego.xy, ego.yaw, ego_lw
     )
-    return (depth > geometry.EPS).any()
+    return depth > geometry.EPS
+
+
+def layout_contact(ego: EgoState, ego_lw, sat: geometry.PolygonSAT):
+    """Whether the ego box overlaps any static obstacle footprint (convex)."""
+    return layout_contacts(ego, ego_lw, sat).any()
 
 
 def stop_line_directions(map_data: MapData):

@@ -128,6 +128,9 @@ class SimContext:
                  IDM agents (``reactive.path_arc``); None otherwise.
       leader_paths: ``reactive.LeaderPaths`` (A, P) each IDM agent's path
                  ahead for finding its leader; None without IDM agents.
+      obstacle_discs: ``metrics.nuplan.ObstacleDiscs`` (O,) of the static
+                 obstacles (nuPlan TTC's culling) under the ``nuplan`` preset;
+                 None otherwise.
     """
 
     lanes: jnp.ndarray
@@ -141,6 +144,7 @@ class SimContext:
     log_overlap: jnp.ndarray
     path_arc: jnp.ndarray | None = None
     leader_paths: reactive.LeaderPaths | None = None
+    obstacle_discs: nuplan.ObstacleDiscs | None = None
 
 
 @struct.dataclass
@@ -160,6 +164,9 @@ class SimState:
         start of the next one).
       idm: ``reactive.IDMState`` of the IDM agents (``SimConfig.agents`` =
         "idm"); None when the agents replay the log.
+      collided: ``metrics.nuplan.CollisionMemory``, the tracks and obstacles
+        touched so far (nuPlan's TTC excludes them for the rest of the
+        episode), under the ``nuplan`` preset; None otherwise.
     """
 
     ego: EgoState
@@ -170,6 +177,7 @@ class SimState:
     key: jnp.ndarray
     obs_key: jnp.ndarray
     idm: reactive.IDMState | None = None
+    collided: nuplan.CollisionMemory | None = None
 
     @property
     def done(self):
@@ -292,6 +300,11 @@ class Simulator:
     def __init__(self, config: SimConfig | None = None):
         self.config = config or SimConfig()
 
+    @property
+    def _nuplan(self) -> bool:
+        """The ``nuplan`` preset: TTC's obstacle discs and collision memory are carried."""
+        return self.config.score.name == "nuplan"
+
     # -- helpers -----------------------------------------------------------
     def agents(self, scenario: Scenario, t, state: SimState | None = None):
         """The other agents at time ``t`` (s), the ego's row marked invalid
@@ -395,6 +408,7 @@ class Simulator:
             leader_paths=(reactive.leader_paths(tr, path_arc, scenario.map.lanes, scenario.map.lane_width,
                                                 scenario.map.lane_successors)
                           if self.config.agents == "idm" else None),
+            obstacle_discs=nuplan.obstacle_discs(scenario.map.obstacles) if self._nuplan else None,
         )
         n_overlaps = infractions.logged_overlap_count(
             ctx.log_overlap, self.episode_steps(scenario) * self.config.dt, scenario.dt_log)
@@ -409,6 +423,8 @@ class Simulator:
             obs_key=k_obs,
             idm=(reactive.init(tr, scenario.dt_log, self.config.idm, ego_index=i)
                  if self.config.agents == "idm" else None),
+            collided=(nuplan.init_memory(tr.valid.shape[0], scenario.map.obstacles.valid.shape[0])
+                      if self._nuplan else None),
         )
         obs = self._observe(scenario, state, self.agents(scenario, ego.t, state), k_obs, assets)
         return state, obs
@@ -446,14 +462,14 @@ class Simulator:
                                 ego.xy, ego.yaw, ego.speed, state.ctx.ego_lw, cfg.idm, ego_index=scenario.ego_index)
         agents = self.agents(scenario, ego.t, state.replace(idm=idm))
         signals = replay.signals_at(scenario.signals, ego.t, scenario.dt_log)
-        facts = self._facts(scenario, state, ego, agents, signals)
+        facts, collided = self._facts(scenario, state, ego, agents, signals)
         truncate = state.step + 1 >= self.episode_steps(scenario)
         episode, events = ep.update(
             state.episode, scenario.route, ego, facts, invalid, truncate, cfg.dt, cfg.score
         )
         key, k_obs = jax.random.split(state.key)
         new = SimState(ego=ego, step=state.step + 1, episode=episode, controller=cstate, ctx=state.ctx, key=key,
-                       obs_key=k_obs, idm=idm)
+                       obs_key=k_obs, idm=idm, collided=collided)
         # Freeze finished episodes: keep the old state, record nothing (the
         # per-episode constants in ctx need no select).
         new = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new.replace(ctx=None), state.replace(ctx=None))
@@ -485,8 +501,9 @@ class Simulator:
         near, near_ok = infractions.nearest_rows(ego, agents)
         # A pair already overlapping in the log is not tested while that lasts.
         exempt = infractions.logged_overlap_exempt(state.ctx.log_overlap[near], ego.t, scenario.dt_log)
+        overlap = infractions.candidate_overlaps(ego, lw, agents, tr.size, near)
         hit, hit_id, hit_cls, hit_cat, hit_row = infractions.agent_contacts(
-            ego, lw, agents, tr.size, tr.category, tr.track_id, near, near_ok & ~exempt
+            ego, lw, agents, tr.size, tr.category, tr.track_id, near, near_ok & ~exempt, overlap=overlap
         )
         red, red_i, red_lines = infractions.red_light_crossing(
             state.ego, ego, lw[0], scenario.map, state.ctx.stop_dir, signals
@@ -529,17 +546,27 @@ class Simulator:
         )
         preset = self.config.score.name
         if preset not in ("nuplan", "navsim"):
-            return facts
+            return facts, state.collided
+        # Every overlapping candidate and obstacle (nuPlan / NAVSIM count each track, once).
+        ob_hit = infractions.layout_contacts(ego, lw, state.ctx.obstacles)
+        facts = facts.replace(
+            layout_hit=ob_hit.any(),
+            contacts=infractions.contact_set(ego, lw, rear_offset, agents, tr.size, tr.category, tr.track_id, near,
+                                             overlap & near_ok & ~exempt, multi_lane, excess, ob_hit))
         wheelbase = getattr(self.config.dynamics, "wheelbase", nuplan.DEFAULT_WHEELBASE)
         if preset == "navsim":
             return facts.replace(navsim=navsim.tick(
                 ego, lw, agents, tr.size, near, near_ok, lanes.centre_in, lanes.rear_in, lanes.tangent,
                 lanes.connector, multi_lane=multi_lane, off_drivable=excess > 0.0, wheelbase=wheelbase,
-                centre_offset=lanes.centre_offset))
+                centre_offset=lanes.centre_offset)), None
+        # nuPlan drops a track from TTC at its first contact for the rest of the episode.
+        collided = nuplan.remember(state.collided, near, overlap & near_ok, ob_hit)
         # nuPlan looks sideways for TTC between lanes, off the drivable area and in the junction.
         wide = multi_lane | (excess > 0.0) | jnp.any(lanes.centre_in & lanes.connector)
-        return facts.replace(nuplan=nuplan.tick(state.ego.xy, ego, lw, agents, tr.size, near, near_ok,
-                                                lanes.centre_in, lanes.tangent, wide_view=wide, wheelbase=wheelbase))
+        return facts.replace(nuplan=nuplan.tick(
+            state.ego.xy, ego, lw, agents, tr.size, lanes.centre_in, lanes.tangent, collided=collided.agents,
+            obstacles=state.ctx.obstacles, discs=state.ctx.obstacle_discs, obstacle_collided=collided.obstacles,
+            wide_view=wide, wheelbase=wheelbase)), collided
 
 
 def sanitize_controls(c: Controls) -> tuple[Controls, jnp.ndarray]:

@@ -16,6 +16,7 @@ from drivee2e_jax.dynamics import ego_from_log
 from drivee2e_jax.eval.closedloop import evaluate
 from drivee2e_jax.policy import load_policy, resolve_policy_path
 from drivee2e_jax.records import TrackRecord
+from drivee2e_jax.replay import AgentStates
 from drivee2e_jax.types import CollisionType as CT
 from drivee2e_jax.types import Marking, Tracks
 from tests.helpers import lanes as lane_helpers
@@ -312,3 +313,32 @@ def test_multi_lane_on_a_curved_connector():
     np.testing.assert_allclose(np.asarray(el.tangent[0]), [np.cos(th), np.sin(th)], atol=0.05)
     corners = np.asarray(geo.box_corners(on.xy, on.yaw, LW[0], LW[1]))
     assert np.all(np.abs(np.hypot(corners[:, 0], corners[:, 1] - 12.0) - 12.0) < 1.5)  # inside by geometry too
+
+
+def test_contact_set_keeps_every_overlapping_track():
+    """nuplan-devkit ``no_ego_at_fault_collisions.py``, ``find_new_collisions``: every
+    tracked object whose box intersects the ego's is registered, each with its own
+    ``_get_collision_type``. Worked case, ego moving 5 m/s: car 0 rear-ends it
+    (centre 2.9 m behind the box centre, 1.5 m behind the rear axle: ACTIVE_REAR,
+    not at fault) and is the nearest; car 1 crosses 3 m ahead with the ego's front
+    bumper in its side (ACTIVE_FRONT, at fault). ``agent_contacts`` reports only
+    the nearest (no fault); ``contact_set`` both, car 1 at fault. Obstacle rows
+    pass through as the obstacle identity."""
+    ego = _moving(0.0, 0.0, 0.0, 5.0)
+    ag = AgentStates(xy=jnp.array([[-2.9, 0.0], [3.0, 0.0]]), yaw=jnp.array([0.0, np.pi / 2]),
+                         vel=jnp.array([[8.0, 0.0], [0.0, 6.0]]), valid=jnp.ones(2, bool))
+    size = jnp.array([[4.5, 1.9, 1.5], [4.5, 1.9, 1.5]])
+    cat, tid = jnp.zeros(2, jnp.int32), jnp.array([70, 80], jnp.int32)
+    near, ok = inf.nearest_rows(ego, ag)
+    assert np.asarray(near).tolist() == [0, 1]
+    overlap = inf.candidate_overlaps(ego, LW, ag, size, near)
+    hit, hit_id, _, _, row = inf.agent_contacts(ego, LW, ag, size, cat, tid, near, ok, overlap=overlap)
+    assert bool(hit) and int(hit_id) == 70
+    kind = inf.collision_type(ego, LW, REAR, ag.xy[row], ag.yaw[row], size[row, :2], jnp.float32(8.0))
+    assert not bool(inf.at_fault(kind, False, 0.0))
+    cs = inf.contact_set(ego, LW, REAR, ag, size, cat, tid, near, overlap & ok, jnp.asarray(False), jnp.float32(0.0),
+                         jnp.array([False, True, False]))
+    assert np.asarray(cs.hit).tolist() == [True, True]
+    assert np.asarray(cs.track_id).tolist() == [70, 80]
+    assert np.asarray(cs.at_fault).tolist() == [False, True]
+    assert np.asarray(cs.obstacle_hit).tolist() == [False, True, False]

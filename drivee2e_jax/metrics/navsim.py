@@ -32,12 +32,13 @@ Every adaptation from NAVSIM's open-loop 4 s setting:
 col   NAVSIM (open loop, one 4 s proposal)         here (closed loop, whole episode)
 ====  ==========================================  ==========================================
 all   41 states at 0.1 s from t0                   every active step of the episode (sim dt)
-NC    shapely intersects; at-fault = STOPPED_TRACK same rule via facts.at_fault; agents 0,
-      / ACTIVE_FRONT / LATERAL in multi-lane or    layout (static obstacles, no track id)
-      non-drivable; agents 0, objects 0.5; a       0.5 while ego speed > 0.05 m/s (a static
-      track once hit not-at-fault is ignored        object is a stopped track; at ego <= 0.05
-      afterwards                                   it is STOPPED_EGO); ignored ids per
-                                                   agent_hit_id as NAVSIM
+NC    shapely intersects; at-fault = STOPPED_TRACK same rule per overlapping candidate
+      / ACTIVE_FRONT / LATERAL in multi-lane or    (facts.contacts: every track touching at a
+      non-drivable; agents 0, objects 0.5; a       step); agents 0, static obstacles 0.5 while
+      track once hit not-at-fault is ignored        ego speed > 0.05 m/s (a stopped track); at
+      afterwards                                   ego <= 0.05 it is STOPPED_EGO and that
+                                                   obstacle row is ignored afterwards, as an
+                                                   ignored track id
 DAC   any corner outside the drivable polygons    facts.drivable_excess_m > 0: a corner outside
       (shapely contains, no tolerance)             the union of the map's drivable polygons,
                                                    exact (infractions.drivable_excess); none
@@ -50,9 +51,11 @@ EP    progress along the centreline / max(PDM-     route progress / max(own prog
       its multiplier product); <= 5 m -> 1         the same time, times the human's product when
                                                    ``human`` is given); <= 5 m -> 1
 TTC   ego and the observed future agents at +0,    ego AND agents projected at constant velocity
-      0.3, 0.6, 0.9 s; a track first met not        (tick needs only the current state); static
-      ahead is ignored for the rest of the          map obstacles are not tested; the "ignore
-      proposal                                     once met not ahead" memory is per tick
+      0.3, 0.6, 0.9 s; a track first met not        (tick needs only the current state); still
+      ahead is ignored for the rest of the          the 16 nearest agents, static map obstacles
+      proposal                                     not tested (issue 35 item 4 done for nuplan
+                                                   only); the "ignore once met not ahead"
+                                                   memory is per tick
 LK    distance of centre to the PDM centreline     distance of the centre to the centreline of
       (the route lane chain from the on-route      the lane whose polygon holds it (lowest
       lane holding the ego at t0, lowest heading   heading error; none: the nearest lane's),
@@ -305,25 +308,41 @@ def tick(
 def no_at_fault_collision(active, agent_hit, hit_id, at_fault, layout_hit, speed) -> float:
     """NC in {0, 0.5, 1} (S ``_calculate_no_at_fault_collision``).
 
-    An agent contact that is not at fault puts its id on an ignore list (no
-    later contact with it counts); an at-fault one scores 0 (every packed
-    category is one of nuPlan's AGENT_TYPES). A layout contact is a static
-    object: STOPPED_TRACK (at fault, 0.5) while the ego speed > 0.05 m/s
-    (U ``get_collision_type``), else STOPPED_EGO (ignored).
-    All arguments (T,) per step.
+    Every track intersecting the ego at a step is classified (NAVSIM loops
+    over all of them): an agent contact that is not at fault puts its id on
+    an ignore list (no later contact with it counts); an at-fault one scores
+    0 (every packed category is one of nuPlan's AGENT_TYPES). A static object
+    contact is STOPPED_TRACK (at fault, 0.5) while the ego speed > 0.05 m/s
+    (U ``get_collision_type``), else STOPPED_EGO (not at fault: that object
+    is ignored afterwards, when obstacles carry their identity).
+
+    Args: active (T,) bool; agent_hit, hit_id, at_fault (T,) or (T, K) (every
+      overlapping candidate, ``infractions.ContactSet``); layout_hit (T,) or
+      (T, O) bool per obstacle row; speed (T,) m/s.
     """
-    score, ignored = 1.0, set()
+    hit, tid, fault = np.asarray(agent_hit, bool), np.asarray(hit_id), np.asarray(at_fault, bool)
+    if hit.ndim == 1:
+        hit, tid, fault = hit[:, None], tid[:, None], fault[:, None]
+    lay = np.asarray(layout_hit, bool)
+    lay = lay[:, None] if lay.ndim == 1 else lay
+    identity = np.asarray(layout_hit).ndim == 2
+    score, ignored, ignored_obs = 1.0, set(), set()
     for i in np.flatnonzero(active):
-        if layout_hit[i] and speed[i] > COLLISION_STOPPED_SPEED:
-            score = min(score, NC_OBJECT)
-        if agent_hit[i]:
-            tid = int(hit_id[i])
-            if tid in ignored:
+        for o in np.flatnonzero(lay[i]):
+            if identity and o in ignored_obs:
                 continue
-            if at_fault[i]:
+            if speed[i] > COLLISION_STOPPED_SPEED:
+                score = min(score, NC_OBJECT)
+            elif identity:
+                ignored_obs.add(o)
+        for k in np.flatnonzero(hit[i]):
+            t = int(tid[i, k])
+            if t in ignored:
+                continue
+            if fault[i, k]:
                 score = min(score, NC_AGENT)
             else:
-                ignored.add(tid)
+                ignored.add(t)
     return score
 
 
@@ -536,7 +555,10 @@ def _sub_metrics(log: Any, scenario: Any, dt: float, plans, plan_dt: float, ref_
         speed[idx], np.asarray(log.accel, np.float64)[idx], np.asarray(log.steer, np.float64)[idx],
         np.asarray(log.yaw_rate, np.float64)[idx], dt)
     out = {
-        "nc": no_at_fault_collision(active, f.agent_hit, f.agent_hit_id, f.at_fault, f.layout_hit, speed),
+        "nc": (no_at_fault_collision(active, f.agent_hit, f.agent_hit_id, f.at_fault, f.layout_hit, speed)
+               if getattr(f, "contacts", None) is None else
+               no_at_fault_collision(active, f.contacts.hit, f.contacts.track_id, f.contacts.at_fault,
+                                     f.contacts.obstacle_hit, speed)),
         "dac": 0.0 if np.any(active & (np.asarray(f.drivable_excess_m) > 0.0)) else 1.0,
         "ddc": driving_direction_compliance(
             active, log.xy, np.asarray(nv.oncoming, bool), np.asarray(nv.in_junction, bool), dt

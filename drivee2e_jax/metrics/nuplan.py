@@ -34,12 +34,15 @@ roadblocks, DRIVABLE_AREA layer)        polygons, exact (``infractions.drivable_
 expert route = roadblocks the expert    ``scenario.route`` (the logged ego path at 1 m): progress
 drives through; progress per roadblock  = arc of the foot point on that polyline (ego vs logged ego
 baseline (``PerFrameProgress...``)      over the same duration), not summed per roadblock
-TTC: ``observation.tracked_objects``    the <= 16 nearest replayed agents (``near``); static map
-incl. static objects                    obstacles are not projected (they are scored as layout
-                                        contacts only)
-TTC: tracks collided earlier are        agents overlapping the ego *now* are dropped (``tick`` has
-excluded at later ticks                 no memory); a new at-fault contact sets that tick's TTC to
-                                        0 on the host, as nuPlan
+TTC: ``observation.tracked_objects``    every replayed agent and every static map obstacle (speed
+incl. static objects (speed 0)          0, its polygon; ahead/behind from its vertex mean) that is
+                                        relevant and not collided; culled to <= 16 agents and <= 8
+                                        obstacles by a closest-approach reach bound that keeps every
+                                        one that can overlap (``ttc_candidates``); ``ttc_overflow``
+                                        flags a tick where more qualified (``ttc_reachable``)
+TTC: tracks collided earlier are        exact: ``CollisionMemory`` (per-episode, nuplan preset)
+excluded at later ticks                 holds every track / obstacle touched so far; a new at-fault
+                                        contact sets that tick's TTC to 0 on the host, as nuPlan
 TTC lateral tracks while "not in        ``wide_view`` argument: the caller passes
 common/connected route objs" or in an   ``multi_lane | on a connector``
 intersection
@@ -48,10 +51,11 @@ baseline of the lane/connector the ego  the ego centre (within width/2) that run
 centre is in, summed over 1 s windows   heading, only when no lane running its way holds it; the
                                         windows sum these (travel with the lane never offsets)
 collision classes VRU (pedestrian,      PEDESTRIAN, CYCLIST -> VRU; every other ``Category`` ->
-bicycle), vehicle, object               vehicle; layout contacts (``layout_hit`` rising edges) ->
-                                        object, at fault only if the ego moves > 0.05 m/s at
-                                        the first contact tick (stopped ego: not at fault, as
-                                        nuPlan); no obstacle id, so re-touching counts again
+bicycle), vehicle, object; every        vehicle; every overlapping candidate of the 16 nearest
+track overlapping at a tick is new      agents counts (``StepFacts.contacts``); static obstacles
+once per scenario                       -> object, each obstacle row once, at its first contact, at
+                                        fault only if the ego moves > 0.05 m/s then (stopped ego:
+                                        not at fault, as nuPlan)
 comfort: ``center_acceleration_2d``    ``ego_comfort_inputs``: nuPlan's bicycle-model state rebuilt
 x / y for the lon / lat bounds, the     from the step log: rear-axle acceleration (a_r, 0) with a_r
 rear-axle acceleration's magnitude      = d/dt (speed * cos beta) (no lateral term, as nuPlan's
@@ -155,6 +159,16 @@ COLUMNS = (*MULTIPLIERS, *WEIGHTS, "nuplan_score")
 # --------------------------------------------------------------------------
 
 
+#: Agent rows box-tested for TTC per tick: the relevant agents whose closest
+#: approach over the horizon passes the reach bound (``ttc_candidates``), nearest
+#: approach first. More qualifying sets ``NuplanTick.ttc_overflow``.
+TTC_AGENT_CANDIDATES = 16
+#: Static obstacles box-tested for TTC per tick (same culling).
+TTC_OBSTACLE_CANDIDATES = 8
+#: Slack added to the reach bound, m (float32 rounding of the closest approach).
+TTC_REACH_SLACK_M = 1e-2
+
+
 @struct.dataclass
 class NuplanTick:
     """nuPlan facts of one tick, one scenario (all scalars).
@@ -164,10 +178,71 @@ class NuplanTick:
                   inf if none within the horizon, or the ego is stopped).
       oncoming_m: float32 ego travel this tick against the direction of the
                   lane it is on, m (>= 0).
+      ttc_reachable: int32 relevant tracks + obstacles not collided so far whose
+                  closest approach passes the reach bound (``ttc_candidates``):
+                  every one that could overlap the projected ego.
+      ttc_overflow: bool more than ``TTC_AGENT_CANDIDATES`` agents or
+                  ``TTC_OBSTACLE_CANDIDATES`` obstacles qualified: the furthest
+                  approaching ones were not box-tested (TTC may be too high).
     """
 
     ttc_s: Array
     oncoming_m: Array
+    ttc_reachable: Array
+    ttc_overflow: Array
+
+
+@struct.dataclass
+class CollisionMemory:
+    """Which tracks and obstacles the ego has touched so far in the episode
+    (nuPlan's ``collided_track_ids``: excluded from TTC from their first
+    contact on, ``extract_tracks_info_excluding_collided_tracks``).
+
+    Attributes:
+      agents: (A,) bool per track row.  obstacles: (O,) bool per obstacle row.
+    """
+
+    agents: Array
+    obstacles: Array
+
+
+def init_memory(num_agents: int, num_obstacles: int) -> CollisionMemory:
+    """Nothing touched yet."""
+    return CollisionMemory(agents=jnp.zeros((num_agents,), bool), obstacles=jnp.zeros((num_obstacles,), bool))
+
+
+def remember(memory: CollisionMemory, near: Array, overlap: Array, obstacle_hit: Array) -> CollisionMemory:
+    """``memory`` plus this tick's contacts: candidate rows ``near`` (K,) whose
+    box overlaps the ego (``overlap`` (K,) bool, validity applied) and the
+    obstacles in ``obstacle_hit`` (O,) bool."""
+    agents = memory.agents.at[near].set(memory.agents[near] | overlap)
+    return CollisionMemory(agents=agents, obstacles=memory.obstacles | obstacle_hit)
+
+
+@struct.dataclass
+class ObstacleDiscs:
+    """A disc around each static obstacle polygon (computed once per episode).
+
+    Attributes:
+      centre: (O, 2) mean of the valid vertices, m (a box footprint's centre,
+              nuPlan's ``tracked_object.center`` for the ahead/behind test).
+      radius: (O,) largest vertex distance from ``centre``, m: the disc holds
+              the (convex) polygon.
+      valid:  (O,) bool.
+    """
+
+    centre: Array
+    radius: Array
+    valid: Array
+
+
+def obstacle_discs(obstacles) -> ObstacleDiscs:
+    """``ObstacleDiscs`` of ``MapData.obstacles`` (Polylines (O, V))."""
+    pv = obstacles.point_valid & obstacles.valid[:, None]
+    n = jnp.maximum(pv.sum(-1), 1)[:, None]
+    centre = jnp.where(pv[..., None], obstacles.xy, 0.0).sum(1) / n
+    r = jnp.where(pv, jnp.linalg.norm(obstacles.xy - centre[:, None], axis=-1), 0.0).max(-1)
+    return ObstacleDiscs(centre=centre.astype(jnp.float32), radius=r.astype(jnp.float32), valid=pv.any(-1))
 
 
 def _heading_vec(yaw: Array) -> Array:
@@ -200,13 +275,61 @@ def ttc_relevant(ego: EgoState, xy: Array, valid: Array, wide_view: Array, wheel
     return valid & (ahead | (wide_view & ~behind & (n > 0)))
 
 
+def closest_approach(ego: EgoState, xy: Array, vel: Array) -> Array:
+    """(K,) smallest centre distance, m, between the ego and each track over
+    the projection times t in [0.1, 2.9] s, both at constant velocity (ego
+    along its heading at its speed; ``vel`` (K, 2) m/s, 0 for a static
+    object). A lower bound of the distance at every projected sample."""
+    ev = ego.speed * _heading_vec(ego.yaw)
+    dp, dv = xy - ego.xy, vel - ev
+    t_lo, t_hi = TTC_STEP_S, TTC_STEP_S * TTC_STEPS
+    t_star = jnp.clip(-jnp.sum(dp * dv, -1) / jnp.maximum(jnp.sum(dv * dv, -1), 1e-12), t_lo, t_hi)
+    return jnp.linalg.norm(dp + dv * t_star[..., None], axis=-1)
+
+
+def earliest_reach(ego: EgoState, xy: Array, vel: Array, reach: Array) -> Array:
+    """(K,) first time t >= 0, s, at which the centres come within ``reach``
+    (K,) m at constant velocity (0 if already; inf if never): no box overlap
+    can come earlier. The rank of ``ttc_candidates``."""
+    ev = ego.speed * _heading_vec(ego.yaw)
+    dp, dv = xy - ego.xy, vel - ev
+    a = jnp.sum(dv * dv, -1)
+    b = jnp.sum(dp * dv, -1)
+    c = jnp.sum(dp * dp, -1) - reach * reach
+    disc = b * b - a * c
+    t = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(a, 1e-12)
+    return jnp.where(c <= 0.0, 0.0, jnp.where((disc >= 0.0) & (b < 0.0) & (a > 1e-12), t, jnp.inf))
+
+
+def ttc_candidates(gap: Array, eligible: Array, k: int, rank: Array) -> tuple[Array, Array, Array]:
+    """Cull the tracks to box-test for TTC, provably keeping every one that can hit.
+
+    Two shapes overlap only if their centres are closer than the sum of the
+    radii of discs around each centre that hold them (half the box diagonal;
+    ``ObstacleDiscs.radius``); so a track whose ``closest_approach`` over
+    [0.1, 2.9] s exceeds that reach (``gap`` > 0) overlaps the projected ego
+    at no sample and its TTC is inf. Of the ``eligible`` tracks with ``gap`` <= 0,
+    the ``k`` that can touch first (smallest ``rank``, ``earliest_reach``) are kept.
+
+    Args: gap (N,) closest approach - reach, m; eligible (N,) bool; k static;
+      rank (N,) s.
+    Returns: rows (k,) int32, ok (k,) bool, qualifying () int32 (> k: some were cut).
+    """
+    can = eligible & (gap <= TTC_REACH_SLACK_M)
+    k = min(k, gap.shape[0])
+    _, rows = jax.lax.top_k(jnp.where(can, -jnp.minimum(rank, 1e6), -jnp.inf), k)
+    return rows, can[rows], jnp.sum(can).astype(jnp.int32)
+
+
 def time_to_collision(ego: EgoState, ego_lw: Array, xy: Array, yaw: Array, speed: Array, lw: Array,
-                      relevant: Array) -> Array:
-    """() float32 nuPlan TTC against K tracks: earliest projection time, s, or inf.
+                      relevant: Array, obstacles: geometry.PolygonSAT | None = None,
+                      obstacle_relevant: Array | None = None) -> Array:
+    """() float32 nuPlan TTC against K tracks (and static obstacles): earliest projection time, s, or inf.
 
     ``_compute_time_to_collision_at_timestamp`` (time_to_collision_within_bound.py):
     the ego and every track move at constant speed along their heading
-    (``_get_ego_tracks_displacement_info``); at t = 0.1, 0.2, ..., 2.9 s the
+    (``_get_ego_tracks_displacement_info``; a static object has speed 0,
+    ``extract_tracks_info_excluding_collided_tracks``); at t = 0.1, 0.2, ..., 2.9 s the
     boxes are tested and the first overlap gives the TTC. nuPlan's
     elongated-box pre-filter (``_get_relevant_tracks``) is only a speed-up
     (an elongated box covers every projected box); here a circle test on
@@ -216,16 +339,15 @@ def time_to_collision(ego: EgoState, ego_lw: Array, xy: Array, yaw: Array, speed
     Args:
       ego: EgoState (xy, yaw, speed).  ego_lw: (2,) length, width, m.
       xy: (K, 2) m.  yaw: (K,) rad.  speed: (K,) m/s.  lw: (K, 2) m.
-      relevant: (K,) bool (``ttc_relevant`` minus tracks already touching).
+      relevant: (K,) bool (``ttc_relevant`` minus tracks collided so far).
+      obstacles: (J, ...) ``geometry.PolygonSAT`` static obstacle footprints
+        (convex), or None.  obstacle_relevant: (J,) bool.
     """
     ev = ego.speed * _heading_vec(ego.yaw)  # (2,)
     av = speed[:, None] * _heading_vec(yaw)  # (K, 2)
-    dp, dv = xy - ego.xy, av - ev
-    t_lo, t_hi = TTC_STEP_S, TTC_STEP_S * TTC_STEPS
-    t_star = jnp.clip(-jnp.sum(dp * dv, -1) / jnp.maximum(jnp.sum(dv * dv, -1), 1e-12), t_lo, t_hi)
-    closest = jnp.linalg.norm(dp + dv * t_star[:, None], axis=-1)
     reach = 0.5 * (jnp.hypot(ego_lw[0], ego_lw[1]) + jnp.hypot(lw[:, 0], lw[:, 1]))
-    cand = relevant & (closest <= reach)
+    cand = relevant & (closest_approach(ego, xy, av) <= reach + TTC_REACH_SLACK_M)
+    ob_cand = jnp.zeros((0,), bool) if obstacles is None else obstacle_relevant
     steps = TTC_STEP_S * jnp.arange(1, TTC_STEPS + 1, dtype=jnp.float32)  # (S,)
 
     def boxes(_):
@@ -234,9 +356,13 @@ def time_to_collision(ego: EgoState, ego_lw: Array, xy: Array, yaw: Array, speed
         per_track = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))
         hit = jax.vmap(per_track, in_axes=(0, None, None, 0, None, None))(ego_xy, ego.yaw, ego_lw, ag_xy, yaw, lw)
         hit_s = (hit & cand[None]).any(-1)
+        if obstacles is not None:
+            per_ob = jax.vmap(geometry.polygon_sat_box_penetration, in_axes=(0, None, None, None))
+            depth = jax.vmap(per_ob, in_axes=(None, 0, None, None))(obstacles, ego_xy, ego.yaw, ego_lw)  # (S, J)
+            hit_s = hit_s | ((depth > geometry.EPS) & ob_cand[None]).any(-1)
         return jnp.where(hit_s.any(), steps[jnp.argmax(hit_s)], jnp.inf)
 
-    ttc = jax.lax.cond(cand.any(), boxes, lambda _: jnp.float32(jnp.inf), None)
+    ttc = jax.lax.cond(cand.any() | ob_cand.any(), boxes, lambda _: jnp.float32(jnp.inf), None)
     return jnp.where(ego.speed > TTC_STOPPED_SPEED, ttc, jnp.inf).astype(jnp.float32)
 
 
@@ -265,9 +391,19 @@ def oncoming_travel(prev_xy: Array, ego: EgoState, centre_in: Array, tangent: Ar
 
 
 def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agent_size: Array,
-         near: Array, near_ok: Array, centre_in: Array, tangent: Array,
-         *, wide_view: Array | bool = False, wheelbase: float = DEFAULT_WHEELBASE) -> NuplanTick:
+         centre_in: Array, tangent: Array, *, collided: Array | None = None,
+         obstacles: geometry.PolygonSAT | None = None, discs: ObstacleDiscs | None = None,
+         obstacle_collided: Array | None = None, wide_view: Array | bool = False,
+         wheelbase: float = DEFAULT_WHEELBASE, k: int = TTC_AGENT_CANDIDATES,
+         k_obstacles: int = TTC_OBSTACLE_CANDIDATES) -> NuplanTick:
     """nuPlan facts of one tick (pure JAX, one scenario).
+
+    TTC looks at every replayed agent and every static obstacle (nuPlan's
+    ``observation.tracked_objects``, static objects at speed 0) that is
+    relevant (``ttc_relevant``) and not collided so far; ``ttc_candidates``
+    culls them by closest approach (provably keeping every one that can
+    overlap the projected ego) to at most ``k`` agents and ``k_obstacles``
+    obstacles, and ``ttc_overflow`` says when more qualified.
 
     Args:
       prev_xy: (2,) ego centre before the step, m.
@@ -275,26 +411,57 @@ def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agen
       ego_lw: (2,) ego length, width, m.
       agents: AgentStates (A,) at the tick's time (the ego's row invalid).
       agent_size: (A, 3) length, width, height, m.
-      near, near_ok: (K,) rows of the nearest agents (``infractions.nearest_rows``)
-        and their validity; K <= 16.
       centre_in, tangent: (M,) bool, (M, 2): the lanes whose polygon holds the
         ego centre and their unit direction there (``infractions.EgoLanes``).
+      collided: (A,) bool tracks the ego has touched so far, this tick
+        included (``CollisionMemory.agents``); None: the agents overlapping
+        the ego now (a tick without memory).
+      obstacles, discs: (O, ...) ``geometry.PolygonSAT`` and ``ObstacleDiscs``
+        of the static obstacles, or None (no obstacles projected).
+      obstacle_collided: (O,) bool obstacles touched so far (None: those
+        overlapping now).
       wide_view: () bool, the ego is in several lanes / off the lanes / in a
         junction: lateral tracks count for TTC (``ttc_relevant``).
       wheelbase: m, for the rear axle (``dynamics.BicycleParams.wheelbase``).
+      k, k_obstacles: static box-test budgets.
 
     Returns:
       NuplanTick.
     """
-    xy, yaw, lw = agents.xy[near], agents.yaw[near], agent_size[near, :2]
-    speed = jnp.linalg.norm(agents.vel[near], axis=-1)
-    ok = near_ok & agents.valid[near]
-    touching = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))(ego.xy, ego.yaw, ego_lw,
-                                                                                     xy, yaw, lw)
-    relevant = ttc_relevant(ego, xy, ok, jnp.asarray(wide_view), wheelbase) & ~touching
+    wide = jnp.asarray(wide_view)
+    lw_all = agent_size[:, :2]
+    if collided is None:
+        collided = jax.vmap(geometry.boxes_overlap, in_axes=(None, None, None, 0, 0, 0))(
+            ego.xy, ego.yaw, ego_lw, agents.xy, agents.yaw, lw_all)
+    speed_all = jnp.linalg.norm(agents.vel, axis=-1)
+    vel_all = speed_all[:, None] * _heading_vec(agents.yaw)  # nuPlan: speed along the heading
+    reach = 0.5 * (jnp.hypot(ego_lw[0], ego_lw[1]) + jnp.hypot(lw_all[:, 0], lw_all[:, 1]))
+    eligible = ttc_relevant(ego, agents.xy, agents.valid & ~collided, wide, wheelbase)
+    rows, ok, n_agents = ttc_candidates(closest_approach(ego, agents.xy, vel_all) - reach, eligible, k,
+                                        earliest_reach(ego, agents.xy, vel_all, reach))
+    overflow = n_agents > rows.shape[0]
+    reachable = n_agents
+    ob_sat = ob_ok = None
+    if obstacles is not None and discs.centre.shape[0] > 0:  # a map may pack no obstacle rows
+        if obstacle_collided is None:
+            depth = jax.vmap(geometry.polygon_sat_box_penetration, in_axes=(0, None, None, None))(
+                obstacles, ego.xy, ego.yaw, ego_lw)
+            obstacle_collided = depth > geometry.EPS  # = infractions.layout_contacts
+        ob_reach = 0.5 * jnp.hypot(ego_lw[0], ego_lw[1]) + discs.radius
+        still = jnp.zeros_like(discs.centre)
+        ob_gap = closest_approach(ego, discs.centre, still) - ob_reach
+        ob_elig = ttc_relevant(ego, discs.centre, discs.valid & ~obstacle_collided, wide, wheelbase)
+        ob_rows, ob_ok, n_obs = ttc_candidates(ob_gap, ob_elig, k_obstacles,
+                                               earliest_reach(ego, discs.centre, still, ob_reach))
+        ob_sat = jax.tree_util.tree_map(lambda x: x[ob_rows], obstacles)
+        overflow = overflow | (n_obs > ob_rows.shape[0])
+        reachable = reachable + n_obs
     return NuplanTick(
-        ttc_s=time_to_collision(ego, ego_lw, xy, yaw, speed, lw, relevant),
+        ttc_s=time_to_collision(ego, ego_lw, agents.xy[rows], agents.yaw[rows], speed_all[rows], lw_all[rows], ok,
+                                ob_sat, ob_ok),
         oncoming_m=oncoming_travel(prev_xy, ego, centre_in, tangent),
+        ttc_reachable=reachable.astype(jnp.int32),
+        ttc_overflow=overflow,
     )
 
 
@@ -304,19 +471,49 @@ def tick(prev_xy: Array, ego: EgoState, ego_lw: Array, agents: AgentStates, agen
 
 
 def _new_layout_faults(layout_hit, speed) -> np.ndarray:
-    """(n,) bool: rising edges of ``layout_hit`` at which the ego moves.
+    """(n,) int: at-fault static-object collisions that begin at each tick.
 
     A static obstacle is a stopped track: ``get_collision_type``
     (utils/collision_utils.py) makes the contact STOPPED_EGO_COLLISION (not at
     fault) when the ego speed <= ``COLLISION_STOPPED_SPEED``, else
-    STOPPED_TRACK_COLLISION (at fault). The type is fixed at the first tick of
-    the contact (``find_new_collisions`` registers the track then).
-    Approximation: obstacles carry no id here, so a new contact after the ego
-    left an obstacle counts again (nuPlan: once per track).
+    STOPPED_TRACK_COLLISION (at fault). ``find_new_collisions``
+    (no_ego_at_fault_collisions.py) registers a track token at its first
+    contact, fixing the type then, and never again in the scenario.
+
+    ``layout_hit`` (n, O) bool per obstacle row (``ContactSet.obstacle_hit``):
+    each obstacle counts once, at its first contact tick, if the ego moves then.
+    ``layout_hit`` (n,) bool (no obstacle identity, legacy logs): every rising
+    edge at which the ego moves counts.
     """
     lay = np.asarray(layout_hit, dtype=bool)
-    rise = lay & ~np.concatenate([[False], lay[:-1]])
-    return rise & (np.asarray(speed, dtype=np.float64) > COLLISION_STOPPED_SPEED)
+    moving = np.asarray(speed, dtype=np.float64) > COLLISION_STOPPED_SPEED
+    if lay.ndim == 1:
+        rise = lay & ~np.concatenate([[False], lay[:-1]])
+        return (rise & moving).astype(int)
+    first = lay & (np.cumsum(lay, axis=0) == 1)  # (n, O): each obstacle's first contact tick
+    return (first & moving[:, None]).sum(axis=1)
+
+
+def _new_agent_collisions(agent_hit, agent_id, agent_category, at_fault):
+    """The tracks' first contacts, in tick order: [(tick, category, at fault), ...].
+
+    ``find_new_collisions`` (no_ego_at_fault_collisions.py): every track whose
+    box overlaps the ego's is registered once, at its first contact tick, with
+    that tick's collision type. The arguments are (n,) (one contact per tick)
+    or (n, K) (every overlapping candidate, ``ContactSet``).
+    """
+    hit = np.asarray(agent_hit, dtype=bool)
+    tid, cat, fault = np.asarray(agent_id), np.asarray(agent_category), np.asarray(at_fault, dtype=bool)
+    if hit.ndim == 1:
+        hit, tid, cat, fault = hit[:, None], tid[:, None], cat[:, None], fault[:, None]
+    seen: set[int] = set()
+    out = []
+    for i, k in zip(*np.nonzero(hit)):
+        if int(tid[i, k]) in seen:
+            continue
+        seen.add(int(tid[i, k]))
+        out.append((int(i), int(cat[i, k]), bool(fault[i, k])))
+    return out
 
 
 def collision_counts(agent_hit, agent_id, agent_category, at_fault, layout_hit,
@@ -326,20 +523,17 @@ def collision_counts(agent_hit, agent_id, agent_category, at_fault, layout_hit,
     ``find_new_collisions`` + ``classify_at_fault_collisions``
     (no_ego_at_fault_collisions.py): each track is counted once, at its
     first contact tick, if that contact is at fault; ``get_fault_type_statistics``
-    (utils/collision_utils.py) groups by type. Layout contacts: one per
-    rising edge of ``layout_hit`` at which the ego moves (``_new_layout_faults``),
-    as objects; ``speed`` None (legacy callers) counts every rising edge.
+    (utils/collision_utils.py) groups by type. Several tracks first touched at
+    the same tick count each. Layout contacts: objects (``_new_layout_faults``);
+    ``speed`` None (legacy callers) counts every one as at fault.
 
-    Args: (n,) arrays of the active ticks (bool, int, int, bool, bool, float m/s).
+    Args: agent_hit, agent_id, agent_category, at_fault: (n,) or (n, K) (bool,
+      int, int, bool); layout_hit (n,) or (n, O) bool; speed (n,) m/s.
     """
-    seen: set[int] = set()
     vru = veh = 0
-    for hit, tid, cat, fault in zip(agent_hit, agent_id, agent_category, at_fault, strict=True):
-        if not hit or int(tid) in seen:
-            continue
-        seen.add(int(tid))
+    for _, cat, fault in _new_agent_collisions(agent_hit, agent_id, agent_category, at_fault):
         if fault:
-            if int(cat) in VRU_CATEGORIES:
+            if cat in VRU_CATEGORIES:
                 vru += 1
             else:
                 veh += 1
@@ -360,14 +554,12 @@ def collision_score(vru: int, veh: int, obj: int) -> float:
 
 def _first_fault_ticks(agent_hit, agent_id, at_fault, layout_hit, speed) -> np.ndarray:
     """(n,) bool: ticks with a NEW at-fault collision (nuPlan's
-    ``timestamps_at_fault_collisions``; their TTC is 0)."""
+    ``timestamps_at_fault_collisions``; their TTC is 0). Shapes as
+    ``collision_counts``."""
     out = np.zeros(len(agent_hit), dtype=bool)
-    seen: set[int] = set()
-    for i, (hit, tid, fault) in enumerate(zip(agent_hit, agent_id, at_fault, strict=True)):
-        if hit and int(tid) not in seen:
-            seen.add(int(tid))
-            out[i] = bool(fault)
-    return out | _new_layout_faults(layout_hit, speed)
+    for i, _, fault in _new_agent_collisions(agent_hit, agent_id, np.zeros(np.shape(agent_hit), int), at_fault):
+        out[i] |= fault
+    return out | (_new_layout_faults(layout_hit, speed) > 0)
 
 
 def ttc_score(ttc_s, speed, new_fault) -> float:
@@ -625,7 +817,10 @@ def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
     Args:
       log: a ``sim.StepLog`` with numpy (T, ...) leaves; ``log.facts`` carries
         agent_hit, agent_hit_id, agent_hit_category, at_fault, layout_hit,
-        drivable_excess_m, speed_limit and ``nuplan`` (NuplanTick, (T,) leaves).
+        drivable_excess_m, speed_limit and ``nuplan`` (NuplanTick, (T,) leaves),
+        and ``contacts`` (``infractions.ContactSet``, (T, K) / (T, O) leaves:
+        every track and obstacle touched; when None the scalar agent_hit* /
+        layout_hit fields are used, one contact per tick).
       scenario: an unbatched numpy ``types.Scenario``.
       dt: simulation step, s (used only when fewer than 2 steps are active).
 
@@ -638,8 +833,13 @@ def episode_columns(log: Any, scenario: Any, dt: float) -> dict[str, float]:
         raise ValueError("nuplan.episode_columns: log.facts.nuplan is None (run the rollout with the nuplan preset)")
     sel = lambda x: np.asarray(x)[act]  # noqa: E731 - active rows
     t, speed = sel(log.t).astype(np.float64), sel(log.speed).astype(np.float64)
-    hit, tid, cat = sel(f.agent_hit).astype(bool), sel(f.agent_hit_id), sel(f.agent_hit_category)
-    fault, lay = sel(f.at_fault).astype(bool), sel(f.layout_hit).astype(bool)
+    c = getattr(f, "contacts", None)
+    if c is None:  # one contact per tick, obstacles without identity
+        hit, tid, cat = sel(f.agent_hit).astype(bool), sel(f.agent_hit_id), sel(f.agent_hit_category)
+        fault, lay = sel(f.at_fault).astype(bool), sel(f.layout_hit).astype(bool)
+    else:  # every overlapping candidate, each obstacle by its row
+        hit, tid, cat = sel(c.hit).astype(bool), sel(c.track_id), sel(c.category)
+        fault, lay = sel(c.at_fault).astype(bool), sel(c.obstacle_hit).astype(bool)
 
     # Progress along the route: ego vs logged ego from t = 0 over the same duration.
     tr = scenario.tracks

@@ -39,16 +39,22 @@ def shapely_box(x: float, y: float, yaw: float, length: float, width: float) -> 
 
 
 def shapely_ttc(ego: tuple[float, float, float, float], ego_lw: tuple[float, float],
-                tracks: list[tuple[float, float, float, float, float, float]]) -> float:
+                tracks: list[tuple[float, float, float, float, float, float]],
+                statics: list[list[tuple[float, float]]] = ()) -> float:
     """nuPlan's projection loop (``_compute_time_to_collision_at_timestamp``,
     time_to_collision_within_bound.py) with shapely boxes: ego (x, y, yaw,
-    speed), tracks (x, y, yaw, speed, length, width); inf if none."""
+    speed), tracks (x, y, yaw, speed, length, width), static objects as
+    polygon vertex lists (speed 0: ``extract_tracks_info_excluding_collided_tracks``
+    gives a non-``Agent`` speed 0); inf if none."""
     ex, ey, eh, ev = ego
+    fixed = [Polygon(p) for p in statics]
     for k, t in enumerate(np.arange(0.1, 3.0, 0.1), start=1):
         eb = shapely_box(ex + k * 0.1 * ev * math.cos(eh), ey + k * 0.1 * ev * math.sin(eh), eh, *ego_lw)
         for x, y, h, v, ln, w in tracks:
             if eb.intersects(shapely_box(x + k * 0.1 * v * math.cos(h), y + k * 0.1 * v * math.sin(h), h, ln, w)):
                 return float(t)
+        if any(eb.intersects(p) for p in fixed):
+            return float(t)
     return math.inf
 
 

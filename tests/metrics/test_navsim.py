@@ -149,6 +149,36 @@ def test_nc_at_fault_ignored_and_objects():
     assert cols(straight_log(20, speed=np.full(20, 0.04), f_layout_hit=lh))["navsim_nc"] == 1.0
 
 
+def test_nc_every_track_at_once_and_obstacle_identity():
+    """S ``_calculate_no_at_fault_collision`` loops over EVERY geometry intersecting the
+    ego at a step (``query(..., predicate="intersects")``), and a static object first
+    met while the ego stands (U ``get_collision_type``: STOPPED_EGO, not at fault)
+    goes on ``proposal_collided_track_ids``: ignored afterwards.
+
+    Worked case (arrays as ``infractions.ContactSet``): at step 3 track 7 (not at
+    fault, the nearest) and track 8 (at fault) touch together -> 0 (keeping only
+    the nearest gave 1). Obstacle 1 touched at 0.0 m/s (step 2), then again
+    while moving (step 6): ignored -> 1 (without identity: 0.5)."""
+    n = 10
+    act = np.ones(n, bool)
+    hit = np.zeros((n, 2), bool)
+    hit[3] = True
+    tid = np.tile([7, 8], (n, 1))
+    fault = np.zeros((n, 2), bool)
+    fault[3, 1] = True
+    lay = np.zeros((n, 2), bool)
+    speed = np.full(n, 3.0)
+    assert navsim.no_at_fault_collision(act, hit, tid, fault, lay, speed) == 0.0
+    assert navsim.no_at_fault_collision(act, hit[:, 0], tid[:, 0], fault[:, 0], lay[:, 0], speed) == 1.0
+    none = (np.zeros((n, 2), bool), tid, np.zeros((n, 2), bool))
+    lay[[2, 6], 1] = True
+    speed[2] = 0.0
+    assert navsim.no_at_fault_collision(act, *none, lay, speed) == 1.0
+    assert navsim.no_at_fault_collision(act, *none[0:3], lay.any(1), speed) == 0.5
+    lay[8, 0] = True  # another obstacle hit while moving: an object collision
+    assert navsim.no_at_fault_collision(act, *none, lay, speed) == 0.5
+
+
 def test_dac_tlc_ttc_any_active_step():
     sc = straight_scenario()
     flag = np.zeros(20, bool)

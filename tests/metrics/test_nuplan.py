@@ -29,16 +29,14 @@ NO_LANE = (jnp.zeros(1, bool), jnp.array([[1.0, 0.0]]))  # no lane polygon holds
 
 
 @jax.jit
-def _tick(prev_xy, ego, ag, size, near, near_ok, wide):
-    return nuplan.tick(prev_xy, ego, jnp.asarray(EGO_LW, jnp.float32), ag, size, near, near_ok, *NO_LANE,
-                       wide_view=wide)
+def _tick(prev_xy, ego, ag, size, wide):
+    return nuplan.tick(prev_xy, ego, jnp.asarray(EGO_LW, jnp.float32), ag, size, *NO_LANE, wide_view=wide)
 
 
 def _ttc(ego, rows, sizes, wide=False):
     ag = agents(rows)
-    k = len(rows)
     size = jnp.asarray([[ln, w, 1.5] for ln, w in sizes], jnp.float32)
-    out = _tick(ego.xy, ego, ag, size, jnp.arange(k), jnp.ones(k, bool), jnp.asarray(wide))
+    out = _tick(ego.xy, ego, ag, size, jnp.asarray(wide))
     return float(out.ttc_s)
 
 
@@ -378,3 +376,166 @@ def test_static_obstacle_contact_while_ego_stopped_is_not_at_fault():
     assert nuplan.collision_score(*nuplan.collision_counts(*no_agent, lay, stopped)) == 1.0
     ticks = nuplan._first_fault_ticks(no_agent[0], no_agent[1], no_agent[3], lay, speed)
     assert np.flatnonzero(ticks).tolist() == [5]
+
+
+# --- issue 35 item 4 / 8: TTC over every reachable track and obstacle, collision bookkeeping ---
+
+
+def _obstacles(polys):
+    """(O, V) Polylines of convex polygons (vertex lists, padded to 6)."""
+    from drivee2e_jax.types import Polylines
+
+    xy = np.zeros((len(polys), 6, 2), np.float32)
+    pv = np.zeros((len(polys), 6), bool)
+    for i, p in enumerate(polys):
+        xy[i, : len(p)] = p
+        pv[i, : len(p)] = True
+    return Polylines(xy=jnp.asarray(xy), point_valid=jnp.asarray(pv), valid=jnp.ones(len(polys), bool))
+
+
+@jax.jit
+def _tick_full(ego, ag, size, ob_xy, ob_pv, ob_valid, collided, ob_collided):
+    from drivee2e_jax import geometry
+    from drivee2e_jax.types import Polylines
+
+    obs = Polylines(xy=ob_xy, point_valid=ob_pv, valid=ob_valid)
+    sat = jax.vmap(geometry.polygon_sat)(obs.xy, obs.point_valid & obs.valid[:, None])
+    return nuplan.tick(ego.xy, ego, jnp.asarray(EGO_LW, jnp.float32), ag, size, *NO_LANE, collided=collided,
+                       obstacles=sat, discs=nuplan.obstacle_discs(obs), obstacle_collided=ob_collided)
+
+
+def _square(cx, cy, h):
+    return [(cx - h, cy - h), (cx + h, cy - h), (cx + h, cy + h), (cx - h, cy + h)]
+
+
+def test_ttc_reaches_past_the_16_nearest_and_static_objects():
+    """nuplan-devkit ``time_to_collision_within_bound.py``:
+    ``extract_tracks_info_excluding_collided_tracks`` keeps EVERY tracked object
+    (``observation.tracked_objects``, static objects included, a non-``Agent`` at
+    speed 0) that is ahead of the rear axle (or not behind in the wide view), and
+    ``_compute_time_to_collision_at_timestamp`` projects all of them.
+
+    Worked case, ego (0, 0) heading +x at 10 m/s, 4 x 2 m:
+    * 20 parked cars 6-25 m BEHIND the ego (the 16 nearest agents; behind: never projected);
+    * an oncoming car at x = 60 m, 20 m/s: gap 60 - 2 - 2.25 = 55.75 m at 30 m/s
+      -> 1.858 s -> first overlapping sample 1.9 s. It is the 21st nearest, so the
+      old "16 nearest" view (``infractions.nearest_rows``) never projected it (TTC inf);
+    * alone, a 2 x 2 m static box centred 20.5 m ahead: gap 20.5 - 2 - 1 = 17.5 m at
+      10 m/s -> 1.75 s -> sample 1.8 s (never projected before: TTC inf).
+    Both against the shapely transcription of nuPlan's loop.
+    """
+    ego = ego_state(0.0, 0.0, 0.0, 10.0)
+    parked = [(-6.0 - i, 3.0 * (i % 2) - 1.5, 0.0, 0.0) for i in range(20)]
+    rows = [*parked, (60.0, 0.0, math.pi, 20.0)]
+    size = jnp.asarray([[4.5, 1.8, 1.5]] * len(rows), jnp.float32)
+    ag = agents(rows)
+    from drivee2e_jax import infractions
+
+    near, _ = infractions.nearest_rows(ego, ag)
+    assert len(rows) - 1 not in np.asarray(near).tolist()  # the old view missed the oncoming car
+    far = _obstacles([_square(500.0, 500.0, 1.0)])
+    none_a, none_o = jnp.zeros(len(rows), bool), jnp.zeros(1, bool)
+    out = _tick_full(ego, ag, size, far.xy, far.point_valid, far.valid, none_a, none_o)
+    want = shapely_ttc((0, 0, 0, 10), EGO_LW, [(*r, 4.5, 1.8) for r in rows])
+    assert want == pytest.approx(1.9)
+    assert float(out.ttc_s) == pytest.approx(want, abs=1e-5)
+    assert int(out.ttc_reachable) == 1 and not bool(out.ttc_overflow)
+
+    box = _square(20.5, 0.0, 1.0)
+    ob = _obstacles([box])
+    lone = agents([(-30.0, 0.0, 0.0, 0.0)])
+    out = _tick_full(ego, lone, size[:1], ob.xy, ob.point_valid, ob.valid, jnp.zeros(1, bool), none_o)
+    want = shapely_ttc((0, 0, 0, 10), EGO_LW, [], statics=[box])
+    assert want == pytest.approx(1.8)
+    assert float(out.ttc_s) == pytest.approx(want, abs=1e-5)
+    # A static object already touched earlier in the episode is excluded (collided_track_ids).
+    out = _tick_full(ego, lone, size[:1], ob.xy, ob.point_valid, ob.valid, jnp.zeros(1, bool), jnp.ones(1, bool))
+    assert float(out.ttc_s) == math.inf
+
+
+def test_ttc_culling_keeps_every_reachable_track_and_flags_overflow():
+    """The culling (``nuplan.ttc_candidates``) keeps every track whose closest
+    approach passes the reach bound; 20 oncoming 1 x 1 m boxes in a file ahead
+    (x = 30.3, 32.3, ..., 68.3 m, 10 m/s; ego 15 m/s: all reach it within 2.9 s)
+    qualify (> 16): ``ttc_overflow`` says so, and the TTC is still the first
+    hit (the earliest possible contacts are kept first): gap 30.3 - 2 - 0.5 =
+    27.8 m at 25 m/s -> 1.112 s -> sample 1.2 s. Oracle: shapely nuPlan loop."""
+    ego = ego_state(0.0, 0.0, 0.0, 15.0)
+    rows = [(68.3 - 2.0 * i, 0.0, math.pi, 10.0) for i in range(20)]
+    size = jnp.asarray([[1.0, 1.0, 1.5]] * 20, jnp.float32)
+    far = _obstacles([_square(500.0, 500.0, 1.0)])
+    out = _tick_full(ego, agents(rows), size, far.xy, far.point_valid, far.valid, jnp.zeros(20, bool),
+                     jnp.zeros(1, bool))
+    assert int(out.ttc_reachable) == 20 and bool(out.ttc_overflow)
+    want = shapely_ttc((0, 0, 0, 15), EGO_LW, [(*r, 1.0, 1.0) for r in rows])
+    assert want == pytest.approx(1.2)
+    assert float(out.ttc_s) == pytest.approx(want, abs=1e-5)
+
+
+def test_ttc_keeps_excluding_a_collided_track():
+    """nuplan-devkit ``time_to_collision_within_bound.py``,
+    ``extract_tracks_info_excluding_collided_tracks``: ``collided_track_ids`` is a
+    union over the timestamps so far, so a track stays excluded after the
+    contact ends. Worked case: a car touched earlier, now 10 m ahead and
+    oncoming at 5 m/s (gap 10 - 4.25 = 5.75 m at 15 m/s -> 0.383 s -> 0.4 s):
+    without memory (not touching now) TTC 0.4; with the memory, inf.
+    The memory: ``nuplan.remember`` ORs each tick's contacts."""
+    ego = ego_state(0.0, 0.0, 0.0, 10.0)
+    rows = [(10.0, 0.0, math.pi, 5.0)]
+    size = jnp.asarray([[4.5, 1.8, 1.5]], jnp.float32)
+    far = _obstacles([_square(500.0, 500.0, 1.0)])
+    args = (ego, agents(rows), size, far.xy, far.point_valid, far.valid)
+    assert float(_tick_full(*args, jnp.zeros(1, bool), jnp.zeros(1, bool)).ttc_s) == pytest.approx(0.4, abs=1e-5)
+    assert shapely_ttc((0, 0, 0, 10), EGO_LW, [(*rows[0], 4.5, 1.8)]) == pytest.approx(0.4)
+    mem = nuplan.init_memory(3, 2)
+    mem = nuplan.remember(mem, jnp.array([2, 0]), jnp.array([True, False]), jnp.array([False, True]))
+    mem = nuplan.remember(mem, jnp.array([2, 0]), jnp.array([False, False]), jnp.array([False, False]))
+    assert np.asarray(mem.agents).tolist() == [False, False, True]
+    assert np.asarray(mem.obstacles).tolist() == [False, True]
+    assert float(_tick_full(*args, jnp.ones(1, bool), jnp.zeros(1, bool)).ttc_s) == math.inf
+
+
+def test_two_tracks_hit_at_once_count_each():
+    """nuplan-devkit ``no_ego_at_fault_collisions.py``, ``find_new_collisions``: every
+    tracked object overlapping the ego at a timestamp is registered and classified
+    (``_get_collision_type``). Worked case at tick 2: car 7 (nearest, rear-ending
+    the ego: ACTIVE_REAR, not at fault) and car 8 (the ego's front on it: at
+    fault) both touch. Keeping only the nearest contact counted nothing (score
+    1); nuPlan counts car 8 (vehicles 1 -> score 0) and that tick's TTC is 0.
+    A pedestrian and a car first hit at fault together count one each."""
+    n = 4
+    hit = np.zeros((n, 2), bool)
+    hit[2:] = True
+    tid = np.tile([7, 8], (n, 1))
+    cat = np.zeros((n, 2), int)
+    fault = np.zeros((n, 2), bool)
+    fault[2:, 1] = True
+    lay = np.zeros((n, 1), bool)
+    speed = np.full(n, 5.0)
+    assert nuplan.collision_counts(hit, tid, cat, fault, lay, speed) == (0, 1, 0)
+    assert nuplan.collision_counts(hit[:, 0], tid[:, 0], cat[:, 0], fault[:, 0], lay[:, 0], speed) == (0, 0, 0)
+    assert np.flatnonzero(nuplan._first_fault_ticks(hit, tid, fault, lay, speed)).tolist() == [2]
+    cat2 = np.tile([int(Category.PEDESTRIAN), 0], (n, 1))
+    both = np.broadcast_to(hit & True, (n, 2)).copy()
+    assert nuplan.collision_counts(both, tid, cat2, both, lay, speed) == (1, 1, 0)
+
+
+def test_static_obstacle_counts_once_per_episode():
+    """nuplan-devkit ``no_ego_at_fault_collisions.py``: ``find_new_collisions`` skips a
+    token in ``collided_track_ids``, so touching the same static object again
+    (the ego backs off and rolls on into it) is no new collision; a second
+    object is. Worked case (ego at 2 m/s): obstacle 0 touched at ticks 1-2 and
+    again 5-6, obstacle 1 at tick 8 -> objects 2 (score 1 - 2/2 = 0); without
+    identity (rising edges of ``layout_hit``) this counted 3. Obstacle 0 first
+    touched while the ego stood (STOPPED_EGO) and re-touched moving: 0."""
+    n = 10
+    lay = np.zeros((n, 2), bool)
+    lay[[1, 2, 5, 6], 0] = True
+    lay[8, 1] = True
+    speed = np.full(n, 2.0)
+    none = (np.zeros(n, bool), np.zeros(n, int), np.zeros(n, int), np.zeros(n, bool))
+    assert nuplan.collision_counts(*none, lay, speed) == (0, 0, 2)
+    assert nuplan.collision_counts(*none, lay.any(1), speed) == (0, 0, 3)
+    assert np.flatnonzero(nuplan._first_fault_ticks(*none[:2], none[3], lay, speed)).tolist() == [1, 8]
+    stood = np.where(np.arange(n) == 1, 0.0, 2.0)
+    assert nuplan.collision_counts(*none, lay[:, :1], stood) == (0, 0, 0)
