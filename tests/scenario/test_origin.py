@@ -47,7 +47,11 @@ def _move(a, d):
 
 
 def moved_map(m: MapRecord, d) -> MapRecord:
-    """``m`` translated by ``d`` (2,) m; ``map_id`` kept (a scenario names it)."""
+    """``m`` translated by ``d`` (2,) m; ``map_id`` kept (a scenario names it).
+
+    Written apart from ``origin.translate_map`` on purpose: moving the input with
+    the function under test would hide a field both forget (a lane's ``polygon``
+    did, before e10cc32)."""
     return dataclasses.replace(
         m,
         lanes=[dataclasses.replace(ln, centerline=_move(ln.centerline, d), left_boundary=_move(ln.left_boundary, d),
